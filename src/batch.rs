@@ -1,0 +1,135 @@
+//! From sensor points to voxel updates: validation, location, grouping, spreading.
+//!
+//! A batch is integrated in two steps that both maps (the f32 reference map on the host and the quantized
+//! on-device map) share:
+//! 1. [`locate`] each map-frame point: reject non-finite or out-of-range input (counted, never stored) and
+//!    find its voxel and sub-cell. Points with the same voxel and sub-cell have identical kernel weights to
+//!    every neighbour, so they are grouped into one moment ([`VoxelStats::absorb_point`], Welford).
+//! 2. [`spread`] each group to the neighbours in the kernel table: target voxel t receives the group's
+//!    moments scaled by k(s → t). Chan's combination makes this exactly the paper's per-point batch sums.
+//!
+//! Grouping turns "points × f³" into "occupied voxels × f³", the main saving on dense scans.
+
+use crate::kernel::KernelLut;
+use crate::key::{KeyError, VoxelKey};
+use crate::stats::VoxelStats;
+
+/// Why one input point was not integrated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Rejection {
+    /// Its position has a NaN or infinite coordinate.
+    NonFinitePosition,
+    /// Its feature has a NaN or infinite component.
+    NonFiniteFeature,
+    /// Its position is too far from the map origin for a voxel key.
+    KeyOutOfRange,
+    /// The map had no room for its voxel group (device scratch full); the point was not integrated.
+    NoRoom,
+}
+
+/// Counts of rejected points, by reason. Every point handed to a map is either integrated or counted here.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RejectionCounts {
+    /// Points with a non-finite position.
+    pub non_finite_position: u32,
+    /// Points with a non-finite feature.
+    pub non_finite_feature: u32,
+    /// Points beyond the key range.
+    pub key_out_of_range: u32,
+    /// Points refused for lack of room.
+    pub no_room: u32,
+}
+
+impl RejectionCounts {
+    /// Count one rejection.
+    pub fn count(&mut self, r: Rejection) {
+        let c = match r {
+            Rejection::NonFinitePosition => &mut self.non_finite_position,
+            Rejection::NonFiniteFeature => &mut self.non_finite_feature,
+            Rejection::KeyOutOfRange => &mut self.key_out_of_range,
+            Rejection::NoRoom => &mut self.no_room,
+        };
+        *c = c.saturating_add(1);
+    }
+
+    /// All rejections.
+    pub fn total(&self) -> u32 {
+        self.non_finite_position
+            .saturating_add(self.non_finite_feature)
+            .saturating_add(self.key_out_of_range)
+            .saturating_add(self.no_room)
+    }
+}
+
+/// Validate a map-frame point and find its voxel and sub-cell.
+pub fn locate<const D: usize, const CAP: usize>(
+    lut: &KernelLut<CAP>,
+    position: [f32; 3],
+    feature: &[f32; D],
+) -> Result<(VoxelKey, u16), Rejection> {
+    let key = VoxelKey::from_position(position, lut.inv_voxel_size()).map_err(|e| match e {
+        KeyError::NonFinite => Rejection::NonFinitePosition,
+        KeyError::OutOfRange => Rejection::KeyOutOfRange,
+    })?;
+    if !feature.iter().all(|v| v.is_finite()) {
+        return Err(Rejection::NonFiniteFeature);
+    }
+    Ok((key, lut.cell_of(position, key)))
+}
+
+/// Call `apply(target, k)` for every neighbour `target` of a group of points in `source`/`cell` that the
+/// kernel reaches with weight `k > 0`. The caller absorbs the group: `target.absorb_scaled(k, group)`.
+#[inline]
+pub fn spread<const CAP: usize>(
+    lut: &KernelLut<CAP>,
+    source: VoxelKey,
+    cell: u16,
+    mut apply: impl FnMut(VoxelKey, f32),
+) {
+    for (&o, &k) in lut.offsets().iter().zip(lut.weights(cell)) {
+        if k > 0.0 {
+            apply(source.offset(o), k);
+        }
+    }
+}
+
+/// Kernel mass a group spreads: Σ over neighbours of k · n (for conservation checks and budgets).
+pub fn spread_mass<const D: usize, const CAP: usize>(
+    lut: &KernelLut<CAP>,
+    cell: u16,
+    group: &VoxelStats<D>,
+) -> f32 {
+    lut.weights(cell).iter().sum::<f32>() * group.lambda
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MapConfig;
+
+    #[test]
+    fn locate_rejects_bad_points() {
+        let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
+        let f = [0.0f32; 4];
+        assert_eq!(locate(&lut, [f32::NAN, 0.0, 0.0], &f), Err(Rejection::NonFinitePosition));
+        assert_eq!(locate(&lut, [1e9, 0.0, 0.0], &f), Err(Rejection::KeyOutOfRange));
+        assert_eq!(locate(&lut, [0.0; 3], &[0.0, f32::INFINITY, 0.0, 0.0]), Err(Rejection::NonFiniteFeature));
+        assert_eq!(locate(&lut, [0.15, -0.05, 0.0], &f), Ok((VoxelKey::new(1, -1, 0), 0)));
+        let mut c = RejectionCounts::default();
+        c.count(Rejection::NonFiniteFeature);
+        c.count(Rejection::NoRoom);
+        assert_eq!((c.non_finite_feature, c.no_room, c.total()), (1, 1, 2));
+    }
+
+    #[test]
+    fn spread_reaches_the_filter_cube() {
+        let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
+        let mut seen = heapless::Vec::<(VoxelKey, f32), 27>::new();
+        spread(&lut, VoxelKey::new(5, 5, 5), 0, |t, k| seen.push((t, k)).unwrap());
+        assert_eq!(seen.len(), 27);
+        assert!(seen.iter().all(|(t, _)| t.distance_squared(VoxelKey::new(5, 5, 5)) <= 3));
+        assert!(seen.contains(&(VoxelKey::new(5, 5, 5), 1.0)));
+    }
+}

@@ -1,0 +1,37 @@
+//! # latentbki
+//!
+//! LatentBKI (open-vocabulary Bayesian kernel inference mapping) for microcontrollers: `no_std`, no heap,
+//! single-precision only.
+//!
+//! Every voxel keeps a normal-inverse-Wishart posterior (confidence λ, mean μ, diagonal Ψ) over
+//! PCA-compressed vision-language features. A batch of sensor points updates every voxel within the sparse
+//! kernel's reach by the closed-form Bayesian kernel update; inference gives the expectation, the Student-t
+//! predictive variance and E-/D-optimality or sampling uncertainty; decoding compares μ with text embeddings
+//! of any words.
+//!
+//! The modules follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
+//! (voxel keys, poses) → [`batch`] (validate, group, spread) → [`stats`] (the update) → [`inference`]
+//! (uncertainty) → [`decode`] (open-vocabulary queries).
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod batch;
+pub mod config;
+pub mod decode;
+pub mod inference;
+pub mod kernel;
+pub mod key;
+pub mod stats;
+
+pub use batch::{locate, spread, Rejection, RejectionCounts};
+pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
+pub use decode::{Codebook, CodebookError, Pca};
+pub use kernel::{sparse_kernel, KernelLut};
+pub use key::{to_map_frame, VoxelKey};
+pub use stats::VoxelStats;
+
+/// Re-exported so users build poses with the same nalgebra the library uses.
+pub use nalgebra;
+/// Re-exported so users seed the same PRNG the library's sampling was tested with.
+pub use rand_xoshiro;
