@@ -113,10 +113,22 @@ mod tests {
     fn locate_rejects_bad_points() {
         let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
         let f = [0.0f32; 4];
-        assert_eq!(locate(&lut, [f32::NAN, 0.0, 0.0], &f), Err(Rejection::NonFinitePosition));
-        assert_eq!(locate(&lut, [1e9, 0.0, 0.0], &f), Err(Rejection::KeyOutOfRange));
-        assert_eq!(locate(&lut, [0.0; 3], &[0.0, f32::INFINITY, 0.0, 0.0]), Err(Rejection::NonFiniteFeature));
-        assert_eq!(locate(&lut, [0.15, -0.05, 0.0], &f), Ok((VoxelKey::new(1, -1, 0), 0)));
+        assert_eq!(
+            locate(&lut, [f32::NAN, 0.0, 0.0], &f),
+            Err(Rejection::NonFinitePosition)
+        );
+        assert_eq!(
+            locate(&lut, [1e9, 0.0, 0.0], &f),
+            Err(Rejection::KeyOutOfRange)
+        );
+        assert_eq!(
+            locate(&lut, [0.0; 3], &[0.0, f32::INFINITY, 0.0, 0.0]),
+            Err(Rejection::NonFiniteFeature)
+        );
+        assert_eq!(
+            locate(&lut, [0.15, -0.05, 0.0], &f),
+            Ok((VoxelKey::new(1, -1, 0), 0))
+        );
         let mut c = RejectionCounts::default();
         c.count(Rejection::NonFiniteFeature);
         c.count(Rejection::NoRoom);
@@ -127,9 +139,13 @@ mod tests {
     fn spread_reaches_the_filter_cube() {
         let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
         let mut seen = heapless::Vec::<(VoxelKey, f32), 27>::new();
-        spread(&lut, VoxelKey::new(5, 5, 5), 0, |t, k| seen.push((t, k)).unwrap());
+        spread(&lut, VoxelKey::new(5, 5, 5), 0, |t, k| {
+            seen.push((t, k)).unwrap()
+        });
         assert_eq!(seen.len(), 27);
-        assert!(seen.iter().all(|(t, _)| t.distance_squared(VoxelKey::new(5, 5, 5)) <= 3));
+        assert!(seen
+            .iter()
+            .all(|(t, _)| t.distance_squared(VoxelKey::new(5, 5, 5)) <= 3));
         assert!(seen.contains(&(VoxelKey::new(5, 5, 5), 1.0)));
     }
 }

@@ -30,7 +30,11 @@ pub struct Prior {
 
 impl Default for Prior {
     fn default() -> Self {
-        Self { lambda: 0.0, mean: 0.0, psi: 1.0 }
+        Self {
+            lambda: 0.0,
+            mean: 0.0,
+            psi: 1.0,
+        }
     }
 }
 
@@ -121,7 +125,7 @@ impl MapConfig {
         if !(kernel_length.is_finite() && kernel_length > 0.0) {
             return Err(ConfigError::KernelLength);
         }
-        if filter_size == 0 || filter_size % 2 == 0 || filter_size > MAX_FILTER_SIZE {
+        if filter_size == 0 || filter_size.is_multiple_of(2) || filter_size > MAX_FILTER_SIZE {
             return Err(ConfigError::FilterSize);
         }
         let prior_ok = prior.lambda.is_finite()
@@ -137,7 +141,13 @@ impl MapConfig {
                 return Err(ConfigError::SubVoxelCells);
             }
         }
-        Ok(Self { voxel_size, kernel_length, filter_size, prior, mode })
+        Ok(Self {
+            voxel_size,
+            kernel_length,
+            filter_size,
+            prior,
+            mode,
+        })
     }
 
     /// Edge length of a voxel in metres.
@@ -181,15 +191,33 @@ mod tests {
     fn rejects_bad_values() {
         let p = Prior::default();
         let m = KernelMode::VoxelOffset;
-        assert_eq!(MapConfig::new(0.0, 0.5, 3, p, m), Err(ConfigError::VoxelSize));
-        assert_eq!(MapConfig::new(f32::NAN, 0.5, 3, p, m), Err(ConfigError::VoxelSize));
-        assert_eq!(MapConfig::new(0.1, -1.0, 3, p, m), Err(ConfigError::KernelLength));
-        assert_eq!(MapConfig::new(0.1, 0.5, 2, p, m), Err(ConfigError::FilterSize));
-        assert_eq!(MapConfig::new(0.1, 0.5, 9, p, m), Err(ConfigError::FilterSize));
+        assert_eq!(
+            MapConfig::new(0.0, 0.5, 3, p, m),
+            Err(ConfigError::VoxelSize)
+        );
+        assert_eq!(
+            MapConfig::new(f32::NAN, 0.5, 3, p, m),
+            Err(ConfigError::VoxelSize)
+        );
+        assert_eq!(
+            MapConfig::new(0.1, -1.0, 3, p, m),
+            Err(ConfigError::KernelLength)
+        );
+        assert_eq!(
+            MapConfig::new(0.1, 0.5, 2, p, m),
+            Err(ConfigError::FilterSize)
+        );
+        assert_eq!(
+            MapConfig::new(0.1, 0.5, 9, p, m),
+            Err(ConfigError::FilterSize)
+        );
         let bad = Prior { lambda: -1.0, ..p };
         assert_eq!(MapConfig::new(0.1, 0.5, 3, bad, m), Err(ConfigError::Prior));
         let sub = KernelMode::SubVoxel { cells: 0 };
-        assert_eq!(MapConfig::new(0.1, 0.5, 3, p, sub), Err(ConfigError::SubVoxelCells));
+        assert_eq!(
+            MapConfig::new(0.1, 0.5, 3, p, sub),
+            Err(ConfigError::SubVoxelCells)
+        );
         assert!(MapConfig::new(0.1, 0.5, 5, p, KernelMode::SubVoxel { cells: 4 }).is_ok());
     }
 }

@@ -25,7 +25,12 @@ impl<const D: usize, const F: usize> Pca<D, F> {
     /// Compress a full-dimensional feature: z = W (x − m).
     pub fn project(&self, x: &[f32; F]) -> [f32; D] {
         core::array::from_fn(|d| {
-            self.components[d].iter().zip(x).zip(&self.mean).map(|((w, xi), mi)| w * (xi - mi)).sum()
+            self.components[d]
+                .iter()
+                .zip(x)
+                .zip(&self.mean)
+                .map(|((w, xi), mi)| w * (xi - mi))
+                .sum()
         })
     }
 
@@ -45,7 +50,11 @@ impl<const D: usize, const F: usize> Pca<D, F> {
         let mut worst = 0.0f32;
         for a in 0..D {
             for b in 0..D {
-                let dot: f32 = self.components[a].iter().zip(&self.components[b]).map(|(x, y)| x * y).sum();
+                let dot: f32 = self.components[a]
+                    .iter()
+                    .zip(&self.components[b])
+                    .map(|(x, y)| x * y)
+                    .sum();
                 let target = if a == b { 1.0 } else { 0.0 };
                 worst = worst.max(libm::fabsf(dot - target));
             }
@@ -105,7 +114,10 @@ fn dot<const D: usize>(a: &[f32; D], b: &[f32; D]) -> f32 {
 
 impl<const D: usize, const K: usize> Codebook<D, K> {
     /// Fold full-dimensional text embeddings through a PCA.
-    pub fn from_pca<const F: usize>(pca: &Pca<D, F>, embeddings: &[[f32; F]]) -> Result<Self, CodebookError> {
+    pub fn from_pca<const F: usize>(
+        pca: &Pca<D, F>,
+        embeddings: &[[f32; F]],
+    ) -> Result<Self, CodebookError> {
         if pca.orthonormality_error() > 1e-3 {
             return Err(CodebookError::NotOrthonormal);
         }
@@ -115,14 +127,30 @@ impl<const D: usize, const K: usize> Codebook<D, K> {
             if !(norm.is_finite() && norm > 0.0) {
                 return Err(CodebookError::BadEmbedding);
             }
-            let direction = core::array::from_fn(|d| pca.components[d].iter().zip(e).map(|(w, x)| w * x).sum());
+            let direction =
+                core::array::from_fn(|d| pca.components[d].iter().zip(e).map(|(w, x)| w * x).sum());
             let offset = e.iter().zip(&pca.mean).map(|(x, m)| x * m).sum();
-            categories.push(Category { direction, offset, norm }).map_err(|_| CodebookError::TooManyCategories)?;
+            categories
+                .push(Category {
+                    direction,
+                    offset,
+                    norm,
+                })
+                .map_err(|_| CodebookError::TooManyCategories)?;
         }
-        let mean_direction =
-            core::array::from_fn(|d| pca.components[d].iter().zip(&pca.mean).map(|(w, m)| w * m).sum());
+        let mean_direction = core::array::from_fn(|d| {
+            pca.components[d]
+                .iter()
+                .zip(&pca.mean)
+                .map(|(w, m)| w * m)
+                .sum()
+        });
         let mean_norm_sq = pca.mean.iter().map(|m| m * m).sum();
-        Ok(Self { categories, mean_direction, mean_norm_sq })
+        Ok(Self {
+            categories,
+            mean_direction,
+            mean_norm_sq,
+        })
     }
 
     /// Embeddings that already live in the map's D-dimensional space (no PCA).
@@ -134,16 +162,33 @@ impl<const D: usize, const K: usize> Codebook<D, K> {
                 return Err(CodebookError::BadEmbedding);
             }
             categories
-                .push(Category { direction: *e, offset: 0.0, norm })
+                .push(Category {
+                    direction: *e,
+                    offset: 0.0,
+                    norm,
+                })
                 .map_err(|_| CodebookError::TooManyCategories)?;
         }
-        Ok(Self { categories, mean_direction: [0.0; D], mean_norm_sq: 0.0 })
+        Ok(Self {
+            categories,
+            mean_direction: [0.0; D],
+            mean_norm_sq: 0.0,
+        })
     }
 
     /// Rebuild from stored parts (e.g. a compiled-in table on the device).
-    pub fn from_parts(categories: &[Category<D>], mean_direction: [f32; D], mean_norm_sq: f32) -> Result<Self, CodebookError> {
-        let categories = heapless::Vec::from_slice(categories).map_err(|_| CodebookError::TooManyCategories)?;
-        Ok(Self { categories, mean_direction, mean_norm_sq })
+    pub fn from_parts(
+        categories: &[Category<D>],
+        mean_direction: [f32; D],
+        mean_norm_sq: f32,
+    ) -> Result<Self, CodebookError> {
+        let categories =
+            heapless::Vec::from_slice(categories).map_err(|_| CodebookError::TooManyCategories)?;
+        Ok(Self {
+            categories,
+            mean_direction,
+            mean_norm_sq,
+        })
     }
 
     /// The folded categories.
@@ -189,7 +234,9 @@ impl<const D: usize, const K: usize> Codebook<D, K> {
 
     /// Cosine score of one category (0 for an unknown index).
     pub fn score(&self, mu: &[f32; D], category: usize) -> f32 {
-        self.categories.get(category).map_or(0.0, |c| self.cosine(c, mu, self.full_norm(mu)))
+        self.categories
+            .get(category)
+            .map_or(0.0, |c| self.cosine(c, mu, self.full_norm(mu)))
     }
 
     /// The best category and its cosine score; `None` for an empty codebook.

@@ -119,7 +119,11 @@ mod tests {
     use rand_xoshiro::Xoshiro128PlusPlus;
 
     fn voxel(lambda: f32) -> VoxelStats<3> {
-        VoxelStats { lambda, mean: [1.0, 0.0, 0.0], psi: [4.0, 1.0, 0.25] }
+        VoxelStats {
+            lambda,
+            mean: [1.0, 0.0, 0.0],
+            psi: [4.0, 1.0, 0.25],
+        }
     }
 
     #[test]
@@ -156,22 +160,42 @@ mod tests {
             let m = s[i] / n as f64;
             let vr = s2[i] / n as f64 - m * m;
             assert!((m - v.mean[i] as f64).abs() < 0.02, "mean {i}: {m}");
-            assert!((vr / var[i] as f64 - 1.0).abs() < 0.05, "variance {i}: {vr} vs {}", var[i]);
+            assert!(
+                (vr / var[i] as f64 - 1.0).abs() < 0.05,
+                "variance {i}: {vr} vs {}",
+                var[i]
+            );
         }
         assert!(!voxel(0.0).sample_predictive(&mut rng, &mut y));
     }
 
     #[test]
     fn sampling_uncertainty_grows_with_scatter() {
-        let cb = Codebook::<3, 3>::from_embeddings(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).unwrap();
+        let cb =
+            Codebook::<3, 3>::from_embeddings(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+                .unwrap();
         let mut rng = Xoshiro128PlusPlus::seed_from_u64(1);
         let mut var = [0.0f32; 3];
-        let tight = VoxelStats::<3> { lambda: 50.0, mean: [1.0, 0.2, 0.0], psi: [0.5; 3] };
-        let loose = VoxelStats::<3> { lambda: 50.0, mean: [1.0, 0.2, 0.0], psi: [20.0; 3] };
-        let a = tight.sampling_uncertainty(&cb, &mut rng, 200, &mut var).unwrap();
-        let b = loose.sampling_uncertainty(&cb, &mut rng, 200, &mut var).unwrap();
+        let tight = VoxelStats::<3> {
+            lambda: 50.0,
+            mean: [1.0, 0.2, 0.0],
+            psi: [0.5; 3],
+        };
+        let loose = VoxelStats::<3> {
+            lambda: 50.0,
+            mean: [1.0, 0.2, 0.0],
+            psi: [20.0; 3],
+        };
+        let a = tight
+            .sampling_uncertainty(&cb, &mut rng, 200, &mut var)
+            .unwrap();
+        let b = loose
+            .sampling_uncertainty(&cb, &mut rng, 200, &mut var)
+            .unwrap();
         assert!(b > 5.0 * a, "tight {a} loose {b}");
         assert!(var.iter().all(|&v| v > 0.0));
-        assert!(tight.sampling_uncertainty(&cb, &mut rng, 1, &mut var).is_none());
+        assert!(tight
+            .sampling_uncertainty(&cb, &mut rng, 1, &mut var)
+            .is_none());
     }
 }

@@ -86,10 +86,18 @@ impl<const CAP: usize> KernelLut<CAP> {
         let mut weights = heapless::Vec::new();
         for c in 0..n_cells {
             for &o in &offsets {
-                weights.push(weight(c, o)).map_err(|_| ConfigError::LutCapacity)?;
+                weights
+                    .push(weight(c, o))
+                    .map_err(|_| ConfigError::LutCapacity)?;
             }
         }
-        Ok(Self { offsets, weights, cells, cell_size: 1.0 / f32::from(cells), inv_voxel_size: 1.0 / vs })
+        Ok(Self {
+            offsets,
+            weights,
+            cells,
+            cell_size: 1.0 / f32::from(cells),
+            inv_voxel_size: 1.0 / vs,
+        })
     }
 
     /// The neighbour offsets with a non-zero weight (in some sub-cell).
@@ -151,7 +159,10 @@ mod tests {
         let mut prev = 1.0;
         for i in 1..50 {
             let k = sparse_kernel(i as f32 * 0.01, 0.5);
-            assert!(k < prev && k >= 0.0, "kernel must decrease monotonically on [0, l)");
+            assert!(
+                k < prev && k >= 0.0,
+                "kernel must decrease monotonically on [0, l)"
+            );
             prev = k;
         }
     }
@@ -180,7 +191,14 @@ mod tests {
 
     #[test]
     fn subvoxel_table_uses_centroid_distances() {
-        let cfg = MapConfig::new(0.1, 0.5, 3, Prior::default(), KernelMode::SubVoxel { cells: 3 }).unwrap();
+        let cfg = MapConfig::new(
+            0.1,
+            0.5,
+            3,
+            Prior::default(),
+            KernelMode::SubVoxel { cells: 3 },
+        )
+        .unwrap();
         let lut: KernelLut<{ 27 * 27 }> = KernelLut::new(&cfg).unwrap();
         // The middle sub-cell (1,1,1) = index 13 sits on the centroid: same as offset mode.
         let own = lut.offsets().iter().position(|o| *o == [0, 0, 0]).unwrap();
@@ -189,11 +207,18 @@ mod tests {
         let d = libm::sqrtf(3.0) * (1.0 / 3.0) * 0.1;
         assert!((lut.weights(0)[own] - sparse_kernel(d, 0.5)).abs() < 1e-6);
         // It is closer to the (-1,-1,-1) neighbour than to (+1,+1,+1).
-        let m = lut.offsets().iter().position(|o| *o == [-1, -1, -1]).unwrap();
+        let m = lut
+            .offsets()
+            .iter()
+            .position(|o| *o == [-1, -1, -1])
+            .unwrap();
         let p = lut.offsets().iter().position(|o| *o == [1, 1, 1]).unwrap();
         assert!(lut.weights(0)[m] > lut.weights(0)[p]);
         // Too small a capacity is an error, not a panic.
-        assert_eq!(KernelLut::<100>::new(&cfg).unwrap_err(), ConfigError::LutCapacity);
+        assert_eq!(
+            KernelLut::<100>::new(&cfg).unwrap_err(),
+            ConfigError::LutCapacity
+        );
         assert!(lut.weights(27).is_empty());
     }
 }

@@ -62,13 +62,19 @@ impl VoxelKey {
 
     /// Whether a key's indices are all within ±[`KEY_LIMIT`] (keys received from outside are checked so).
     pub fn in_range(self) -> bool {
-        self.as_array().iter().all(|&i| i > -KEY_LIMIT && i < KEY_LIMIT)
+        self.as_array()
+            .iter()
+            .all(|&i| i > -KEY_LIMIT && i < KEY_LIMIT)
     }
 
     /// The neighbour at an offset of at most ±3 voxels per axis.
     pub fn offset(self, o: crate::kernel::Offset) -> Self {
         // |index| < 2³⁰ and |o| ≤ 3, so these additions cannot overflow.
-        Self::new(self.x + i32::from(o[0]), self.y + i32::from(o[1]), self.z + i32::from(o[2]))
+        Self::new(
+            self.x + i32::from(o[0]),
+            self.y + i32::from(o[1]),
+            self.z + i32::from(o[2]),
+        )
     }
 
     /// Centre of the voxel in the map frame.
@@ -104,9 +110,18 @@ mod tests {
     fn floor_not_truncate() {
         let k = VoxelKey::from_position([0.05, -0.05, -0.1], 10.0).unwrap();
         assert_eq!(k, VoxelKey::new(0, -1, -1));
-        assert_eq!(VoxelKey::from_position([f32::NAN, 0.0, 0.0], 10.0), Err(KeyError::NonFinite));
-        assert_eq!(VoxelKey::from_position([0.0, f32::INFINITY, 0.0], 10.0), Err(KeyError::NonFinite));
-        assert_eq!(VoxelKey::from_position([0.0, 0.0, 2e8], 10.0), Err(KeyError::OutOfRange));
+        assert_eq!(
+            VoxelKey::from_position([f32::NAN, 0.0, 0.0], 10.0),
+            Err(KeyError::NonFinite)
+        );
+        assert_eq!(
+            VoxelKey::from_position([0.0, f32::INFINITY, 0.0], 10.0),
+            Err(KeyError::NonFinite)
+        );
+        assert_eq!(
+            VoxelKey::from_position([0.0, 0.0, 2e8], 10.0),
+            Err(KeyError::OutOfRange)
+        );
     }
 
     #[test]
@@ -116,6 +131,8 @@ mod tests {
             UnitQuaternion::from_euler_angles(0.0, 0.0, core::f32::consts::FRAC_PI_2),
         );
         let q = to_map_frame(&pose, [1.0, 0.0, 0.0]);
-        assert!((q[0] - 1.0).abs() < 1e-6 && (q[1] - 3.0).abs() < 1e-6 && (q[2] - 3.0).abs() < 1e-6);
+        assert!(
+            (q[0] - 1.0).abs() < 1e-6 && (q[1] - 3.0).abs() < 1e-6 && (q[2] - 3.0).abs() < 1e-6
+        );
     }
 }

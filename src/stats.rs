@@ -31,11 +31,19 @@ pub struct VoxelStats<const D: usize> {
 
 impl<const D: usize> VoxelStats<D> {
     /// Moments of nothing: λ = 0, μ = 0, Ψ = 0. The identity of [`Self::absorb`].
-    pub const EMPTY: Self = Self { lambda: 0.0, mean: [0.0; D], psi: [0.0; D] };
+    pub const EMPTY: Self = Self {
+        lambda: 0.0,
+        mean: [0.0; D],
+        psi: [0.0; D],
+    };
 
     /// The posterior of a voxel nothing has been observed in.
     pub fn from_prior(prior: &Prior) -> Self {
-        Self { lambda: prior.lambda, mean: [prior.mean; D], psi: [prior.psi; D] }
+        Self {
+            lambda: prior.lambda,
+            mean: [prior.mean; D],
+            psi: [prior.psi; D],
+        }
     }
 
     /// Combine with a batch's moments whose weights and scatter are all multiplied by `k`
@@ -89,7 +97,10 @@ impl<const D: usize> VoxelStats<D> {
         if !(w > 0.0) {
             return Self::EMPTY;
         }
-        let mut data = Self { lambda: w, ..Self::EMPTY };
+        let mut data = Self {
+            lambda: w,
+            ..Self::EMPTY
+        };
         let back = self.lambda / w; // λ_C / w
         let cross = prior.lambda * w / self.lambda;
         for i in 0..D {
@@ -133,21 +144,30 @@ mod tests {
         let ks = [k1, k2, k3];
         // k̄, ȳ, S̄ by the paper's definitions.
         let k_bar: f64 = ks.iter().sum();
-        let y_bar: [f64; 2] =
-            core::array::from_fn(|d| ks.iter().zip(&ys).map(|(k, y)| k * y[d]).sum::<f64>() / k_bar);
+        let y_bar: [f64; 2] = core::array::from_fn(|d| {
+            ks.iter().zip(&ys).map(|(k, y)| k * y[d]).sum::<f64>() / k_bar
+        });
         let s_bar: [f64; 2] = core::array::from_fn(|d| {
-            ks.iter().zip(&ys).map(|(k, y)| k * (y[d] - y_bar[d]).powi(2)).sum::<f64>()
+            ks.iter()
+                .zip(&ys)
+                .map(|(k, y)| k * (y[d] - y_bar[d]).powi(2))
+                .sum::<f64>()
         });
         // A previous state: λ = 2, μ = (0.5, -0.5), Ψ = (1, 2).
         let (l0, m0, p0) = (2.0f64, [0.5f64, -0.5], [1.0f64, 2.0]);
         let l1 = l0 + k_bar;
         let m1: [f64; 2] = core::array::from_fn(|d| (l0 * m0[d] + y_bar[d] * k_bar) / l1);
-        let p1: [f64; 2] =
-            core::array::from_fn(|d| p0[d] + s_bar[d] + l0 * k_bar / l1 * (y_bar[d] - m0[d]).powi(2));
+        let p1: [f64; 2] = core::array::from_fn(|d| {
+            p0[d] + s_bar[d] + l0 * k_bar / l1 * (y_bar[d] - m0[d]).powi(2)
+        });
         // Concretely: k̄ = 2.35201, λ¹ = 4.35201.
         assert!((k_bar - 2.35201).abs() < 1e-4 && (l1 - 4.35201).abs() < 1e-4);
 
-        let mut v = VoxelStats::<2> { lambda: 2.0, mean: [0.5, -0.5], psi: [1.0, 2.0] };
+        let mut v = VoxelStats::<2> {
+            lambda: 2.0,
+            mean: [0.5, -0.5],
+            psi: [1.0, 2.0],
+        };
         let mut batch = VoxelStats::<2>::EMPTY;
         for (k, y) in ks.iter().zip(&ys) {
             batch.absorb_point(*k as f32, &[y[0] as f32, y[1] as f32]);
@@ -177,8 +197,16 @@ mod tests {
 
     #[test]
     fn prior_is_removed_exactly_once() {
-        let prior = VoxelStats::<2> { lambda: 1.5, mean: [0.2, -0.1], psi: [0.7, 0.3] };
-        let data = VoxelStats::<2> { lambda: 3.0, mean: [1.0, 2.0], psi: [0.5, 4.0] };
+        let prior = VoxelStats::<2> {
+            lambda: 1.5,
+            mean: [0.2, -0.1],
+            psi: [0.7, 0.3],
+        };
+        let data = VoxelStats::<2> {
+            lambda: 3.0,
+            mean: [1.0, 2.0],
+            psi: [0.5, 4.0],
+        };
         let mut post = prior;
         post.absorb(&data);
         let back = post.without_prior(&prior);

@@ -23,7 +23,10 @@ fn random_pca(rng: &mut TestRng) -> Box<Pca<D, F>> {
             rows.push(v.map(|a| a / n));
         }
     }
-    let mut pca = Box::new(Pca { mean: [0.0; F], components: [[0.0; F]; D] });
+    let mut pca = Box::new(Pca {
+        mean: [0.0; F],
+        components: [[0.0; F]; D],
+    });
     for (dst, src) in pca.components.iter_mut().zip(&rows) {
         *dst = src.map(|a| a as f32);
     }
@@ -39,7 +42,11 @@ fn naive_scores(pca: &Pca<D, F>, mu: &[f32; D], embeddings: &[[f32; F]]) -> Vec<
         .iter()
         .map(|e| {
             let ne = e.iter().map(|&a| (a as f64).powi(2)).sum::<f64>().sqrt();
-            x.iter().zip(e).map(|(&a, &b)| a as f64 * b as f64).sum::<f64>() / (nx * ne)
+            x.iter()
+                .zip(e)
+                .map(|(&a, &b)| a as f64 * b as f64)
+                .sum::<f64>()
+                / (nx * ne)
         })
         .collect()
 }
@@ -77,8 +84,17 @@ fn codebook_errors_are_clear() {
     let mut rng = TestRng::deterministic_rng(proptest::test_runner::RngAlgorithm::ChaCha);
     let mut pca = random_pca(&mut rng);
     let e = [[1.0f32; F]];
-    assert_eq!(Codebook::<D, 1>::from_pca(&pca, &[[0.0; F]]).unwrap_err(), CodebookError::BadEmbedding);
-    assert_eq!(Codebook::<D, 0>::from_pca(&pca, &e).unwrap_err(), CodebookError::TooManyCategories);
+    assert_eq!(
+        Codebook::<D, 1>::from_pca(&pca, &[[0.0; F]]).unwrap_err(),
+        CodebookError::BadEmbedding
+    );
+    assert_eq!(
+        Codebook::<D, 0>::from_pca(&pca, &e).unwrap_err(),
+        CodebookError::TooManyCategories
+    );
     pca.components[3][0] += 0.1;
-    assert_eq!(Codebook::<D, 1>::from_pca(&pca, &e).unwrap_err(), CodebookError::NotOrthonormal);
+    assert_eq!(
+        Codebook::<D, 1>::from_pca(&pca, &e).unwrap_err(),
+        CodebookError::NotOrthonormal
+    );
 }

@@ -19,9 +19,14 @@ fn oracle(prior: &Prior, batches: &[Vec<(f64, [f64; D])>]) -> (f64, [f64; D], [f
         if k_bar <= 0.0 {
             continue;
         }
-        let y_bar: [f64; D] = core::array::from_fn(|d| batch.iter().map(|(k, y)| k * y[d]).sum::<f64>() / k_bar);
-        let s_bar: [f64; D] =
-            core::array::from_fn(|d| batch.iter().map(|(k, y)| k * (y[d] - y_bar[d]).powi(2)).sum());
+        let y_bar: [f64; D] =
+            core::array::from_fn(|d| batch.iter().map(|(k, y)| k * y[d]).sum::<f64>() / k_bar);
+        let s_bar: [f64; D] = core::array::from_fn(|d| {
+            batch
+                .iter()
+                .map(|(k, y)| k * (y[d] - y_bar[d]).powi(2))
+                .sum()
+        });
         let new_lambda = lambda + k_bar;
         for d in 0..D {
             let e = (y_bar[d] - mu[d]).powi(2);
@@ -33,17 +38,44 @@ fn oracle(prior: &Prior, batches: &[Vec<(f64, [f64; D])>]) -> (f64, [f64; D], [f
     (lambda, mu, psi)
 }
 
-fn assert_close(what: &str, got: &VoxelStats<D>, exact: &(f64, [f64; D], [f64; D]), points: &[(f64, [f64; D])], prior: &Prior) {
-    let y_scale = points.iter().flat_map(|(_, y)| y.iter()).fold(prior.mean.abs() as f64, |a, v| a.max(v.abs()));
-    let psi_scale = points.iter().map(|(k, y)| k * y.iter().map(|v| v * v).fold(0.0, f64::max)).sum::<f64>()
+fn assert_close(
+    what: &str,
+    got: &VoxelStats<D>,
+    exact: &(f64, [f64; D], [f64; D]),
+    points: &[(f64, [f64; D])],
+    prior: &Prior,
+) {
+    let y_scale = points
+        .iter()
+        .flat_map(|(_, y)| y.iter())
+        .fold(prior.mean.abs() as f64, |a, v| a.max(v.abs()));
+    let psi_scale = points
+        .iter()
+        .map(|(k, y)| k * y.iter().map(|v| v * v).fold(0.0, f64::max))
+        .sum::<f64>()
         + prior.psi as f64
         + (prior.lambda as f64) * (prior.mean as f64).powi(2);
     let lam_scale: f64 = points.iter().map(|(k, _)| k).sum::<f64>() + prior.lambda as f64;
     let tol = |exact: f64, scale: f64| 1e-5 * (exact.abs() + scale);
-    assert!((got.lambda as f64 - exact.0).abs() <= tol(exact.0, lam_scale), "{what}: lambda {} vs {}", got.lambda, exact.0);
+    assert!(
+        (got.lambda as f64 - exact.0).abs() <= tol(exact.0, lam_scale),
+        "{what}: lambda {} vs {}",
+        got.lambda,
+        exact.0
+    );
     for d in 0..D {
-        assert!((got.mean[d] as f64 - exact.1[d]).abs() <= tol(exact.1[d], y_scale), "{what}: mean[{d}] {} vs {}", got.mean[d], exact.1[d]);
-        assert!((got.psi[d] as f64 - exact.2[d]).abs() <= tol(exact.2[d], psi_scale), "{what}: psi[{d}] {} vs {}", got.psi[d], exact.2[d]);
+        assert!(
+            (got.mean[d] as f64 - exact.1[d]).abs() <= tol(exact.1[d], y_scale),
+            "{what}: mean[{d}] {} vs {}",
+            got.mean[d],
+            exact.1[d]
+        );
+        assert!(
+            (got.psi[d] as f64 - exact.2[d]).abs() <= tol(exact.2[d], psi_scale),
+            "{what}: psi[{d}] {} vs {}",
+            got.psi[d],
+            exact.2[d]
+        );
     }
 }
 
@@ -62,7 +94,11 @@ fn observation() -> impl Strategy<Value = (f64, [f64; D])> {
 fn prior() -> impl Strategy<Value = Prior> {
     prop_oneof![
         Just(Prior::default()),
-        (0.0f32..3.0, -1.0f32..1.0, 0.0f32..2.0).prop_map(|(lambda, mean, psi)| Prior { lambda, mean, psi }),
+        (0.0f32..3.0, -1.0f32..1.0, 0.0f32..2.0).prop_map(|(lambda, mean, psi)| Prior {
+            lambda,
+            mean,
+            psi
+        }),
     ]
 }
 
@@ -118,7 +154,7 @@ proptest! {
             g.absorb_scaled(k, &group);
         }
         let regrouped: Vec<_> = all.chunks(3).flat_map(|c| c.iter().map(move |(_, y)| (c[0].0, *y))).collect();
-        let exact_g = oracle(&prior, &[regrouped.clone()]);
+        let exact_g = oracle(&prior, std::slice::from_ref(&regrouped));
         assert_close("grouped", &g, &exact_g, &regrouped, &prior);
     }
 }
@@ -133,6 +169,9 @@ fn empty_batch_and_single_point() {
     let y = [2.5f32; D];
     v.absorb_point(0.7, &y);
     assert_eq!(v.lambda, 0.7);
-    assert_eq!(v.mean, y, "with λ₀ = 0 the first point's feature is the mean");
+    assert_eq!(
+        v.mean, y,
+        "with λ₀ = 0 the first point's feature is the mean"
+    );
     assert_eq!(v.psi, [1.0; D], "a single point adds no scatter");
 }

@@ -1,1 +1,163 @@
-fn main() {}
+//! `host-sim`: the command line of the desktop twin.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use host_sim::npy_io::{read_frame, read_poses, write_map_npz, Frame};
+use host_sim::ReferenceMap;
+use latentbki::nalgebra::Isometry3;
+use latentbki::{KernelMode, MapConfig, Prior};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "host-sim",
+    version,
+    about = "LatentBKI desktop twin: simulator, evaluation, base station"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Integrate recorded frames ((N, 3+D) float32 .npy, xyz then feature) into a map; write it as .npz.
+    Integrate(IntegrateArgs),
+}
+
+/// The map configuration, shared by every command that builds a map.
+#[derive(Args, Debug, Clone)]
+struct MapArgs {
+    /// Voxel edge length in metres.
+    #[arg(long, default_value_t = 0.1)]
+    voxel_size: f32,
+    /// Kernel length ℓ in metres.
+    #[arg(long, default_value_t = 0.5)]
+    kernel_length: f32,
+    /// Filter size f (odd, 1..=7): a point updates f³ voxels.
+    #[arg(long, default_value_t = 3)]
+    filter_size: u8,
+    /// Prior confidence λ₀.
+    #[arg(long, default_value_t = 0.0)]
+    prior_lambda: f32,
+    /// Prior mean μ₀ (every dimension).
+    #[arg(long, default_value_t = 0.0)]
+    prior_mean: f32,
+    /// Prior scatter Ψ₀ (every dimension).
+    #[arg(long, default_value_t = 1.0)]
+    prior_psi: f32,
+    /// Sub-voxel kernel: cells per axis for the point's position inside its voxel (0 = voxel-offset kernel).
+    #[arg(long, default_value_t = 0)]
+    subvoxel_cells: u8,
+}
+
+impl MapArgs {
+    fn config(&self) -> Result<MapConfig> {
+        let prior = Prior {
+            lambda: self.prior_lambda,
+            mean: self.prior_mean,
+            psi: self.prior_psi,
+        };
+        let mode = match self.subvoxel_cells {
+            0 => KernelMode::VoxelOffset,
+            cells => KernelMode::SubVoxel { cells },
+        };
+        MapConfig::new(
+            self.voxel_size,
+            self.kernel_length,
+            self.filter_size,
+            prior,
+            mode,
+        )
+        .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
+    }
+}
+
+#[derive(Args, Debug)]
+struct IntegrateArgs {
+    /// Frames, applied as batches in the order given.
+    #[arg(required = true)]
+    frames: Vec<PathBuf>,
+    /// Output .npz with arrays keys (V×3 int32), lambda (V), mean (V×D), psi (V×D).
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Optional pose file: one `tx ty tz qx qy qz qw` line (sensor → map) per frame. Without it, points are
+    /// taken to be in the map frame already.
+    #[arg(long)]
+    poses: Option<PathBuf>,
+    #[command(flatten)]
+    map: MapArgs,
+}
+
+fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Frame) -> Result<()> {
+    let poses = match &args.poses {
+        Some(p) => {
+            let poses = read_poses(p)?;
+            if poses.len() != args.frames.len() {
+                bail!(
+                    "{}: {} poses for {} frames",
+                    p.display(),
+                    poses.len(),
+                    args.frames.len()
+                );
+            }
+            poses
+        }
+        None => vec![Isometry3::identity(); args.frames.len()],
+    };
+    let mut map = ReferenceMap::<D>::new(config)?;
+    let mut frame = Some(first);
+    for (i, path) in args.frames.iter().enumerate() {
+        let f = match frame.take() {
+            Some(f) => f,
+            None => read_frame(path)?,
+        };
+        if f.dim != D {
+            return Err(host_sim::npy_io::IoError::DimensionMismatch {
+                path: path.clone(),
+                expected: D,
+                found: f.dim,
+            }
+            .into());
+        }
+        let features: Vec<[f32; D]> = f
+            .features
+            .chunks_exact(D)
+            .map(|c| c.try_into().expect("chunks_exact gives D values"))
+            .collect();
+        map.integrate(&poses[i], &f.positions, &features);
+    }
+    let r = map.rejections();
+    write_map_npz(&args.out, &map.sorted())?;
+    println!(
+        "integrated {} points from {} frames into {} voxels (D = {D}); rejected {} (non-finite position {}, non-finite feature {}, out of range {})",
+        map.points(),
+        args.frames.len(),
+        map.len(),
+        r.total(),
+        r.non_finite_position,
+        r.non_finite_feature,
+        r.key_out_of_range
+    );
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Integrate(args) => {
+            let config = args.map.config()?;
+            let first = read_frame(&args.frames[0]).context("reading the first frame")?;
+            // The map is generic over D at compile time; these are the dimensions the CLI carries.
+            macro_rules! by_dim {
+                ($($d:literal)*) => {
+                    match first.dim {
+                        $($d => integrate::<$d>(&args, config, first),)*
+                        other => bail!("feature dimension {other} is not compiled in; supported: {:?}", [$($d),*]),
+                    }
+                };
+            }
+            by_dim!(1 2 3 4 8 16 32 64 128 256 384 512 768)
+        }
+    }
+}

@@ -1,0 +1,8 @@
+//! host-sim: the desktop twin of the robot. It runs the same `latentbki` core as the firmware: the f32
+//! reference map, recorded-data integration and (later) the simulator and base station.
+#![forbid(unsafe_code)]
+
+pub mod npy_io;
+pub mod reference_map;
+
+pub use reference_map::ReferenceMap;
