@@ -26,6 +26,7 @@ pub mod decode;
 pub mod inference;
 pub mod kernel;
 pub mod key;
+pub mod sink;
 pub mod stats;
 
 pub use batch::{locate, spread, Rejection, RejectionCounts};
@@ -33,6 +34,7 @@ pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
 pub use decode::{Codebook, CodebookError, Pca};
 pub use kernel::{sparse_kernel, KernelLut};
 pub use key::{to_map_frame, VoxelKey};
+pub use sink::{Evicted, EvictionSink, SinkFull};
 pub use stats::VoxelStats;
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
