@@ -24,8 +24,10 @@ pub enum Rejection {
     NonFiniteFeature,
     /// Its position is too far from the map origin for a voxel key.
     KeyOutOfRange,
-    /// The map had no room for its voxel group (device scratch full); the point was not integrated.
+    /// The map had no room for the voxels it reaches (pool full and the eviction sink refusing).
     NoRoom,
+    /// The point lies outside the local map's window around the robot.
+    OutsideWindow,
 }
 
 /// Counts of rejected points, by reason. Every point handed to a map is either integrated or counted here.
@@ -40,6 +42,8 @@ pub struct RejectionCounts {
     pub key_out_of_range: u32,
     /// Points refused for lack of room.
     pub no_room: u32,
+    /// Points outside the local map's window.
+    pub outside_window: u32,
 }
 
 impl RejectionCounts {
@@ -50,6 +54,7 @@ impl RejectionCounts {
             Rejection::NonFiniteFeature => &mut self.non_finite_feature,
             Rejection::KeyOutOfRange => &mut self.key_out_of_range,
             Rejection::NoRoom => &mut self.no_room,
+            Rejection::OutsideWindow => &mut self.outside_window,
         };
         *c = c.saturating_add(1);
     }
@@ -60,6 +65,7 @@ impl RejectionCounts {
             .saturating_add(self.non_finite_feature)
             .saturating_add(self.key_out_of_range)
             .saturating_add(self.no_room)
+            .saturating_add(self.outside_window)
     }
 }
 

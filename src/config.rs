@@ -80,6 +80,8 @@ pub enum ConfigError {
     SubVoxelCells,
     /// The kernel table does not fit the capacity chosen for it.
     LutCapacity,
+    /// A local map's window radius must be at least one voxel and at most 16,000 voxels.
+    Window,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -91,6 +93,7 @@ impl core::fmt::Display for ConfigError {
             Self::Prior => "prior: lambda and psi must be finite and >= 0, mean finite",
             Self::SubVoxelCells => "sub-voxel cells per axis must be between 1 and 8",
             Self::LutCapacity => "kernel lookup table capacity too small for this configuration",
+            Self::Window => "window radius must be between 1 and 16000 voxels",
         })
     }
 }
@@ -98,19 +101,21 @@ impl core::fmt::Display for ConfigError {
 impl core::error::Error for ConfigError {}
 
 impl Default for MapConfig {
-    /// The paper's outdoor configuration: 0.1 m voxels, ℓ = 0.5 m, f = 3, offset-distance kernel.
     fn default() -> Self {
-        Self {
-            voxel_size: 0.1,
-            kernel_length: 0.5,
-            filter_size: 3,
-            prior: Prior::default(),
-            mode: KernelMode::VoxelOffset,
-        }
+        Self::DEFAULT
     }
 }
 
 impl MapConfig {
+    /// The paper's outdoor configuration: 0.1 m voxels, ℓ = 0.5 m, f = 3, offset-distance kernel, default prior.
+    pub const DEFAULT: Self = Self {
+        voxel_size: 0.1,
+        kernel_length: 0.5,
+        filter_size: 3,
+        prior: Prior { lambda: 0.0, mean: 0.0, psi: 1.0 },
+        mode: KernelMode::VoxelOffset,
+    };
+
     /// Validate and build a configuration.
     pub fn new(
         voxel_size: f32,

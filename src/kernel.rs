@@ -36,6 +36,9 @@ pub const MAX_NEIGHBOURS: usize =
 #[derive(Clone, Debug)]
 pub struct KernelLut<const CAP: usize = MAX_NEIGHBOURS> {
     offsets: heapless::Vec<Offset, MAX_NEIGHBOURS>,
+    /// Position in `offsets` of each offset of the f³ cube (row-major z, y, x), or `u16::MAX`.
+    dense: [u16; MAX_NEIGHBOURS],
+    reach: i32,
     /// weights[cell * offsets.len() + j]
     weights: heapless::Vec<f32, CAP>,
     cells: u8,
@@ -44,6 +47,17 @@ pub struct KernelLut<const CAP: usize = MAX_NEIGHBOURS> {
 }
 
 impl<const CAP: usize> KernelLut<CAP> {
+    /// An empty table (reaches nothing), for `const` initialisation before [`Self::new`].
+    pub const EMPTY: Self = Self {
+        offsets: heapless::Vec::new(),
+        dense: [u16::MAX; MAX_NEIGHBOURS],
+        reach: 0,
+        weights: heapless::Vec::new(),
+        cells: 1,
+        cell_size: 1.0,
+        inv_voxel_size: 1.0,
+    };
+
     /// Compute the table for `config`. Fails only if `CAP` is too small.
     pub fn new(config: &MapConfig) -> Result<Self, ConfigError> {
         let reach = config.reach();
@@ -83,6 +97,12 @@ impl<const CAP: usize> KernelLut<CAP> {
                 }
             }
         }
+        let f = 2 * reach + 1;
+        let mut dense = [u16::MAX; MAX_NEIGHBOURS];
+        for (j, o) in offsets.iter().enumerate() {
+            let i = ((i32::from(o[2]) + reach) * f + (i32::from(o[1]) + reach)) * f + (i32::from(o[0]) + reach);
+            dense[i as usize] = j as u16;
+        }
         let mut weights = heapless::Vec::new();
         for c in 0..n_cells {
             for &o in &offsets {
@@ -93,6 +113,8 @@ impl<const CAP: usize> KernelLut<CAP> {
         }
         Ok(Self {
             offsets,
+            dense,
+            reach,
             weights,
             cells,
             cell_size: 1.0 / f32::from(cells),
@@ -111,6 +133,30 @@ impl<const CAP: usize> KernelLut<CAP> {
         let n = self.offsets.len();
         let start = usize::from(cell) * n;
         self.weights.get(start..start + n).unwrap_or(&[])
+    }
+
+    /// The weight from a point in sub-cell `cell` to the neighbour at integer offset `(dx, dy, dz)`;
+    /// 0 beyond the filter or the kernel.
+    #[inline]
+    pub fn weight_at(&self, cell: u16, dx: i32, dy: i32, dz: i32) -> f32 {
+        let r = self.reach;
+        if dx.abs() > r || dy.abs() > r || dz.abs() > r {
+            return 0.0;
+        }
+        let f = 2 * r + 1;
+        let i = (((dz + r) * f + (dy + r)) * f + (dx + r)) as usize;
+        match self.dense.get(i) {
+            Some(&j) if j != u16::MAX => {
+                let n = self.offsets.len();
+                self.weights.get(usize::from(cell) * n + usize::from(j)).copied().unwrap_or(0.0)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// Half-width of the filter in voxels.
+    pub fn reach(&self) -> i32 {
+        self.reach
     }
 
     /// 1 / voxel size, for computing keys.
@@ -220,5 +266,11 @@ mod tests {
             ConfigError::LutCapacity
         );
         assert!(lut.weights(27).is_empty());
+        // The dense lookup agrees with the list.
+        for (j, o) in lut.offsets().iter().enumerate() {
+            let w = lut.weight_at(5, i32::from(o[0]), i32::from(o[1]), i32::from(o[2]));
+            assert_eq!(w, lut.weights(5)[j]);
+        }
+        assert_eq!(lut.weight_at(5, 2, 0, 0), 0.0);
     }
 }

@@ -25,7 +25,9 @@ pub mod config;
 pub mod decode;
 pub mod inference;
 pub mod kernel;
+pub mod local_map;
 pub mod key;
+pub mod quant;
 pub mod sink;
 pub mod stats;
 
@@ -33,6 +35,8 @@ pub use batch::{locate, spread, Rejection, RejectionCounts};
 pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
 pub use decode::{Codebook, CodebookError, Pca};
 pub use kernel::{sparse_kernel, KernelLut};
+pub use local_map::LocalMap;
+pub use quant::packed_len;
 pub use key::{to_map_frame, VoxelKey};
 pub use sink::{Evicted, EvictionSink, SinkFull};
 pub use stats::VoxelStats;
