@@ -23,6 +23,7 @@
 pub mod batch;
 pub mod config;
 pub mod decode;
+pub mod frame;
 pub mod inference;
 pub mod kernel;
 pub mod local_map;
@@ -30,6 +31,7 @@ pub mod key;
 pub mod quant;
 pub mod sink;
 pub mod stats;
+pub mod wire;
 
 pub use batch::{locate, spread, Rejection, RejectionCounts};
 pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
@@ -40,6 +42,8 @@ pub use quant::packed_len;
 pub use key::{to_map_frame, VoxelKey};
 pub use sink::{Evicted, EvictionSink, SinkFull};
 pub use stats::VoxelStats;
+pub use frame::{FrameDecoder, FrameEncoder, SeqTracker};
+pub use wire::{SessionConfig, SummaryCodec};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;
