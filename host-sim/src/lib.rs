@@ -2,7 +2,9 @@
 //! reference map, recorded-data integration and (later) the simulator and base station.
 #![forbid(unsafe_code)]
 
+pub mod eval;
 pub mod npy_io;
 pub mod reference_map;
+pub mod sim;
 
 pub use reference_map::ReferenceMap;

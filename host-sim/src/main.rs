@@ -23,6 +23,13 @@ struct Cli {
 enum Command {
     /// Integrate recorded frames ((N, 3+D) float32 .npy, xyz then feature) into a map; write it as .npz.
     Integrate(IntegrateArgs),
+    /// The main job for a newcomer: a robot maps the real LiDAR tile; prints the results table and writes
+    /// the pictures (out/).
+    Demo(host_sim::eval::cli::DemoArgs),
+    /// The paper's experiments on the tile and the procedural house: table, sweep, curves, pictures.
+    Eval(host_sim::eval::cli::EvalArgs),
+    /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
+    Query(host_sim::eval::cli::QueryArgs),
 }
 
 /// The map configuration, shared by every command that builds a map.
@@ -145,6 +152,10 @@ fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Fra
 
 fn main() -> Result<()> {
     match Cli::parse().command {
+        // The base station's simulated link plugs into the demo here (`Some(Box<dyn VoxelSink>)`).
+        Command::Demo(args) => host_sim::eval::cli::demo(&args, None),
+        Command::Eval(args) => host_sim::eval::cli::eval(&args),
+        Command::Query(args) => host_sim::eval::cli::query(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
             let first = read_frame(&args.frames[0]).context("reading the first frame")?;

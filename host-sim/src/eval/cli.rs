@@ -1,0 +1,280 @@
+//! The simulator's commands (`demo`, `eval`, `query`): argument types and handlers, kept here so that
+//! `main.rs` only dispatches.
+
+use super::experiment::{self, Method, Setup};
+use super::figures::{self, TopDown};
+use super::methods::{Decoder, VoxelSink};
+use super::scenes::{self, Report, Scene, SceneOptions, SceneSource};
+use crate::sim::vocab::Vocabulary;
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Which scenes `eval` runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SceneArg {
+    /// The real labelled LiDAR tile.
+    Tile,
+    /// The procedural house.
+    Indoor,
+    /// Both.
+    Both,
+}
+
+/// `demo` options.
+#[derive(Args, Debug, Clone)]
+pub struct DemoArgs {
+    /// Output directory for results.md and the PNGs.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Seed of the run (network noise, hold-out split, sensor subsampling).
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+}
+
+/// `eval` options.
+#[derive(Args, Debug, Clone)]
+pub struct EvalArgs {
+    /// Scenes to evaluate.
+    #[arg(long, value_enum, default_value = "both")]
+    pub scene: SceneArg,
+    /// Output directory for results.md and the PNGs.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Seed of the run.
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+    /// Frames on the tile loop.
+    #[arg(long, default_value_t = 60)]
+    pub frames: usize,
+    /// LiDAR points per frame on the tile.
+    #[arg(long, default_value_t = 3000)]
+    pub points: usize,
+    /// Camera pixels per frame indoors (1 % of 640 × 480 by default, as VLMap).
+    #[arg(long, default_value_t = 3072)]
+    pub pixels: usize,
+    /// Seed of the house layout.
+    #[arg(long, default_value_t = 1)]
+    pub layout_seed: u64,
+    /// Indoors, use the 8 × 8 multizone ToF sensor instead of the depth camera.
+    #[arg(long)]
+    pub tof: bool,
+    /// Skip the sparsity sweep.
+    #[arg(long)]
+    pub no_sweep: bool,
+    /// Free-text queries to picture (words of the committed vocabulary); default one per scene.
+    #[arg(long = "query")]
+    pub queries: Vec<String>,
+    /// Probability that a segment is mislabelled in a block of frames (the simulated network's error model).
+    #[arg(long)]
+    pub confusion_probability: Option<f32>,
+    /// Expected norm of per-point feature noise relative to the unit text embedding.
+    #[arg(long)]
+    pub feature_noise: Option<f32>,
+}
+
+/// `query` options.
+#[derive(Args, Debug, Clone)]
+pub struct QueryArgs {
+    /// Text to look for (a phrase of the committed vocabulary).
+    pub text: String,
+    /// Scene to map and query.
+    #[arg(long, value_enum, default_value = "tile")]
+    pub scene: SceneArg,
+    /// Output directory for the heat map.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Seed of the run.
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+}
+
+fn write_results(out: &Path, reports: &[Report], command: &str) -> Result<PathBuf> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut md =
+        format!("## Results\n\nProduced by `cargo run --release -p host-sim -- {command}`.\n\n");
+    for r in reports {
+        md += &r.markdown;
+        md += "\n";
+    }
+    let path = out.join("results.md");
+    std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
+    Ok(path)
+}
+
+fn print_report(r: &Report) {
+    println!("{}", r.markdown);
+    for f in &r.figures {
+        println!("wrote {}", f.display());
+    }
+}
+
+/// `demo`: the real tile, default configuration, the on-device map, the table and the pictures.
+///
+/// `link` receives every voxel the device map evicts: the base station's simulated link plugs in here.
+pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
+    let start = Instant::now();
+    let setup = Setup {
+        seed: args.seed,
+        ..Setup::default()
+    };
+    println!("LatentBKI demo: a robot maps the real labelled LiDAR tile (ASPRS classes) with a simulated vision-language network.");
+    let report = scenes::run(
+        Scene::Tile,
+        &SceneOptions::default(),
+        &setup,
+        &args.out,
+        true,
+        link,
+    )?;
+    print_report(&report);
+    let path = write_results(&args.out, std::slice::from_ref(&report), "demo")?;
+    println!("wrote {}", path.display());
+    println!("done in {:.1} s", start.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `eval`: both scenes (or one), every method, the sweep, the curves and the pictures.
+pub fn eval(args: &EvalArgs) -> Result<()> {
+    let start = Instant::now();
+    let vocab = Vocabulary::builtin();
+    for q in &args.queries {
+        vocab.get(q)?;
+    }
+    let mut setup = Setup {
+        seed: args.seed,
+        ..Setup::default()
+    };
+    if let Some(p) = args.confusion_probability {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&p),
+            "--confusion-probability must be in [0, 1]"
+        );
+        setup.noise.confusion_probability = p;
+    }
+    if let Some(n) = args.feature_noise {
+        anyhow::ensure!(n >= 0.0 && n.is_finite(), "--feature-noise must be >= 0");
+        setup.noise.feature_noise = n;
+    }
+    let options = SceneOptions {
+        tile_frames: args.frames,
+        tile_points: args.points,
+        indoor_pixels: args.pixels,
+        layout_seed: args.layout_seed,
+        indoor_tof: args.tof,
+        queries: args.queries.clone(),
+        ..SceneOptions::default()
+    };
+    let scenes = match args.scene {
+        SceneArg::Tile => vec![Scene::Tile],
+        SceneArg::Indoor => vec![Scene::Indoor],
+        SceneArg::Both => vec![Scene::Tile, Scene::Indoor],
+    };
+    let mut reports = Vec::new();
+    for s in scenes {
+        let r = scenes::run(s, &options, &setup, &args.out, !args.no_sweep, None)?;
+        print_report(&r);
+        reports.push(r);
+    }
+    let path = write_results(&args.out, &reports, "eval")?;
+    println!("wrote {}", path.display());
+    println!("done in {:.1} s", start.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `query`: map a scene with the device map and show where the text matches.
+pub fn query(args: &QueryArgs) -> Result<()> {
+    let vocab = Vocabulary::builtin();
+    let embedding = *vocab.get(&args.text)?;
+    let scene = match args.scene {
+        SceneArg::Indoor => Scene::Indoor,
+        _ => Scene::Tile,
+    };
+    let setup = Setup {
+        seed: args.seed,
+        device_window: scene.device_window(),
+        ..Setup::default()
+    };
+    let options = SceneOptions::default();
+    let source = SceneSource::new(scene, &options, setup.seed)?;
+    let train = source.sequence(source.budget(), true);
+    let test = source.sequence(source.budget(), false);
+    let dec = experiment::decoding(&vocab, &train, &setup)?;
+    let frames = experiment::encode(&test, &dec, &setup);
+    let results = experiment::run(
+        &[Method::OnDevice(3)],
+        &experiment::Inputs {
+            frames: &frames,
+            config: &test.config,
+            dec: &dec,
+            setup: &setup,
+        },
+        None,
+        None,
+        "mapping",
+    )?;
+    let snap = results[0].mapper.snapshot();
+    let top = TopDown::new(&snap, &test.config, test.cutaway_height);
+    let cb = Decoder::from_pca(&dec.pca, &[embedding]).map_err(|e| anyhow::anyhow!("{e}"))?;
+    // Where does the query beat every class name? (open vocabulary: the query competes with the classes)
+    let mut with_query = dec
+        .classes
+        .iter()
+        .map(|c| *vocab.get(c).expect("class in vocabulary"))
+        .collect::<Vec<_>>();
+    with_query.push(embedding);
+    let all = Decoder::from_pca(&dec.pca, &with_query).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let q_index = with_query.len() - 1;
+    let mut ranked: Vec<(f32, [f32; 3], usize)> = snap
+        .iter()
+        .filter(|(_, v)| v.lambda >= 1.0)
+        .map(|(k, v)| {
+            let best = all.argmax(&v.mean).map_or(0, |(c, _)| c);
+            (
+                cb.score(&v.mean, 0),
+                k.centroid(test.config.voxel_size()),
+                best,
+            )
+        })
+        .collect();
+    let won = ranked.iter().filter(|r| r.2 == q_index).count();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    println!(
+        "\"{}\" in the {} map ({} voxels): it is the best match among the scene's classes and the query in {} voxels ({:.1} %).",
+        args.text,
+        scene.name(),
+        ranked.len(),
+        won,
+        100.0 * won as f64 / ranked.len().max(1) as f64
+    );
+    println!("best-matching voxels (cosine, position in m, nearest class name):");
+    for (s, p, best) in ranked.iter().take(5) {
+        let nearest = dec
+            .decoder
+            .argmax(
+                &snap
+                    .iter()
+                    .find(|(k, _)| k.centroid(test.config.voxel_size()) == *p)
+                    .map(|(_, v)| v.mean)
+                    .unwrap_or([0.0; 64]),
+            )
+            .map_or("?", |(c, _)| dec.classes[c].as_str());
+        let tag = if *best == q_index {
+            " (query wins)"
+        } else {
+            ""
+        };
+        println!(
+            "  {s:.3}  ({:.1}, {:.1}, {:.1})  {nearest}{tag}",
+            p[0], p[1], p[2]
+        );
+    }
+    let dir = args.out.join(scene.name());
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join(format!("query_{}.png", args.text.trim().replace(' ', "_")));
+    figures::query_heatmap(&path, &args.text, &top, &test.config, &cb)
+        .map_err(|e| anyhow::anyhow!("drawing: {e}"))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}

@@ -1,0 +1,485 @@
+//! The paper's protocol, run end to end on a simulated sequence.
+//!
+//! 1. Fit the PCA 384 → 64 on a *training* sequence (its own seed), build the codebook of the scene's class
+//!    names from the committed text embeddings.
+//! 2. Encode the *test* sequence with the simulated network; per frame, a seeded 80 % of the points are
+//!    integrated and 20 % held out (§IV-A).
+//! 3. Every method sees the same frames. After integrating frame t, each held-out point of frame t is
+//!    predicted from the map as it is then (the voxel it falls in; never observed = unknown = wrong) and
+//!    counted in the method's confusion matrix.
+//! 4. For the LatentBKI f = 3 map, each held-out point also gets its voxel's E-optimality, D-optimality and
+//!    sampling uncertainty, for the sparsification analysis.
+//!
+//! Methods run in parallel threads (one method per thread, frames in order), so results do not depend on
+//! scheduling: same seed, same table.
+
+use super::methods::{
+    CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, Mapper, OnDevice,
+    RunningMean, SegmentationOnly, VoxelSink, D,
+};
+use super::metrics::Confusion;
+use super::sparsification::Scored;
+use crate::sim::encoder::{Encoder, NoiseModel};
+use crate::sim::vocab::{Vocabulary, FULL_DIM};
+use crate::sim::{mix_all, pca, unit, Sequence};
+use indicatif::{ProgressBar, ProgressStyle};
+use latentbki::rand_xoshiro::rand_core::SeedableRng;
+use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
+use latentbki::{MapConfig, Pca, VoxelStats};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Settings of an experiment that are not the scene's.
+#[derive(Clone, Copy, Debug)]
+pub struct Setup {
+    /// The simulated network's error model.
+    pub noise: NoiseModel,
+    /// Seed of the test sequence's encoder noise and hold-out split.
+    pub seed: u64,
+    /// Fraction of each frame held out.
+    pub holdout: f32,
+    /// Draws per voxel for the sampling uncertainty.
+    pub sampling_draws: u32,
+    /// Training points used to fit the PCA.
+    pub pca_samples: usize,
+    /// Window radius of the device map, metres: at least the sensor range plus the kernel reach, or
+    /// the device would refuse points at the edge of its view (the tile default: 10 m LiDAR).
+    pub device_window: f32,
+}
+
+impl Default for Setup {
+    fn default() -> Self {
+        Self {
+            noise: NoiseModel::default(),
+            seed: 7,
+            holdout: 0.2,
+            sampling_draws: 32,
+            pca_samples: 8000,
+            device_window: 11.0,
+        }
+    }
+}
+
+/// The decoding side of a scene: class embeddings, PCA and codebook.
+pub struct Decoding {
+    /// Class phrases.
+    pub classes: Vec<String>,
+    /// The PCA fitted on the training sequence.
+    pub pca: Box<Pca<D, FULL_DIM>>,
+    /// Share of the training features' variance the PCA keeps.
+    pub explained_variance: f64,
+    /// The codebook of the class phrases.
+    pub decoder: Decoder,
+    /// The encoder of the test sequence.
+    pub encoder: Encoder,
+    /// The clean class embeddings, projected.
+    pub projected: Vec<Feature>,
+}
+
+/// Fit the PCA on `train` (encoded with a seed of its own) and build the codebook.
+pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::Result<Decoding> {
+    let names: Vec<&str> = train.classes.iter().map(String::as_str).collect();
+    let embeddings = vocab.embeddings(&names)?;
+    let train_seed = mix_all(&[setup.seed, 0x7EA1]);
+    let train_encoder = Encoder::new(embeddings.clone(), setup.noise, train_seed);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(train_seed);
+    let total = train.points().max(1);
+    let stride = (total / setup.pca_samples.max(1)).max(1);
+    let mut samples: Vec<[f32; FULL_DIM]> = Vec::with_capacity(setup.pca_samples);
+    let mut n = 0usize;
+    for (t, f) in train.frames.iter().enumerate() {
+        let chosen: Vec<_> = f
+            .points
+            .iter()
+            .filter(|_| {
+                n += 1;
+                n.is_multiple_of(stride)
+            })
+            .copied()
+            .collect();
+        samples.extend(train_encoder.encode_full(&chosen, t as u32, &mut rng));
+    }
+    let pca = pca::fit::<D>(&samples)?;
+    let explained_variance = pca::explained_variance(&pca, &samples);
+    let decoder = Decoder::from_pca(&pca, &embeddings)
+        .map_err(|e| anyhow::anyhow!("building the codebook: {e}"))?;
+    let encoder = Encoder::new(embeddings, setup.noise, setup.seed);
+    let projected = encoder.project_classes(&pca);
+    Ok(Decoding {
+        classes: train.classes.clone(),
+        pca,
+        explained_variance,
+        decoder,
+        encoder,
+        projected,
+    })
+}
+
+/// Encode a sequence and split each frame into integrated and held-out points.
+pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame> {
+    seq.frames
+        .iter()
+        .enumerate()
+        .map(|(t, f)| {
+            let mut rng =
+                Xoshiro256PlusPlus::seed_from_u64(mix_all(&[setup.seed, t as u64, 0xE1C]));
+            let feats =
+                dec.encoder
+                    .encode_compressed(&f.points, t as u32, &dec.projected, &mut rng);
+            let inv = f.pose.inverse();
+            let mut out = EncodedFrame {
+                pose: f.pose,
+                points: Vec::new(),
+                map_points: Vec::new(),
+                features: Vec::new(),
+                held_points: Vec::new(),
+                held_classes: Vec::new(),
+                held_features: Vec::new(),
+            };
+            for (i, (p, y)) in f.points.iter().zip(feats).enumerate() {
+                let held = unit(mix_all(&[setup.seed, t as u64, i as u64, 0x401D])) < setup.holdout;
+                if held {
+                    out.held_points.push(p.position);
+                    out.held_classes.push(p.class);
+                    out.held_features.push(y);
+                } else {
+                    let s = latentbki::to_map_frame(&inv, p.position);
+                    out.points.push(s);
+                    out.map_points.push(p.position);
+                    out.features.push(y);
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// A method in the comparison.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Decode each held-out point's own feature.
+    Segmentation,
+    /// Last observation in the voxel wins.
+    Heuristic,
+    /// VLMap-style running mean.
+    VlmapMean,
+    /// ConvBKI-style categorical BKI with filter size f.
+    ConvBki(u8),
+    /// LatentBKI on the f32 reference map with filter size f.
+    LatentBki(u8),
+    /// LatentBKI on the quantized device map with filter size f.
+    OnDevice(u8),
+}
+
+impl Method {
+    /// The table row name.
+    pub fn label(&self) -> String {
+        match self {
+            Self::Segmentation => "Segmentation only".into(),
+            Self::Heuristic => "Heuristic (last wins)".into(),
+            Self::VlmapMean => "VLMap-style mean (f = 1)".into(),
+            Self::ConvBki(f) => format!("ConvBKI-style categorical (f = {f})"),
+            Self::LatentBki(f) => format!("LatentBKI f32 (f = {f})"),
+            Self::OnDevice(f) => format!("LatentBKI on-device, quantized (f = {f})"),
+        }
+    }
+    /// Whether the method quantifies uncertainty.
+    pub fn has_uncertainty(&self) -> bool {
+        matches!(self, Self::LatentBki(_) | Self::OnDevice(_))
+    }
+    /// The comparison of the paper's tables, plus the device map.
+    pub fn all() -> Vec<Method> {
+        vec![
+            Self::Segmentation,
+            Self::Heuristic,
+            Self::VlmapMean,
+            Self::ConvBki(3),
+            Self::LatentBki(1),
+            Self::LatentBki(3),
+            Self::OnDevice(3),
+        ]
+    }
+}
+
+/// The final state and score of one method.
+pub struct MethodResult {
+    /// Which method.
+    pub method: Method,
+    /// Confusion matrix over every held-out point of every frame.
+    pub confusion: Confusion,
+    /// Voxels in the final map.
+    pub voxels: usize,
+    /// Wall time of integration and evaluation, seconds.
+    pub seconds: f64,
+    /// Per held-out point uncertainties (only for the method asked to score them).
+    pub scored: Vec<Scored>,
+    /// The final map.
+    pub mapper: Box<dyn Mapper>,
+}
+
+fn with_filter(config: &MapConfig, f: u8) -> anyhow::Result<MapConfig> {
+    MapConfig::new(
+        config.voxel_size(),
+        config.kernel_length(),
+        f,
+        config.prior(),
+        config.mode(),
+    )
+    .map_err(|e| anyhow::anyhow!("filter size {f}: {e}"))
+}
+
+fn build(
+    method: Method,
+    config: &MapConfig,
+    dec: &Decoding,
+    setup: &Setup,
+    link: Option<Box<dyn VoxelSink>>,
+) -> anyhow::Result<Box<dyn Mapper>> {
+    let e = |e: latentbki::ConfigError| anyhow::anyhow!("{}: {e}", method.label());
+    Ok(match method {
+        Method::Segmentation => Box::new(SegmentationOnly),
+        Method::Heuristic => Box::new(Heuristic::new(*config)),
+        Method::VlmapMean => Box::new(RunningMean::new(*config)),
+        Method::ConvBki(f) => {
+            Box::new(CategoricalBki::new(with_filter(config, f)?, dec.decoder.clone()).map_err(e)?)
+        }
+        Method::LatentBki(f) => Box::new(LatentBki::new(with_filter(config, f)?).map_err(e)?),
+        Method::OnDevice(f) => {
+            Box::new(OnDevice::new(with_filter(config, f)?, setup.device_window, link).map_err(e)?)
+        }
+    })
+}
+
+/// The uncertainties of one voxel for the sparsification analysis (`None` where the covariance is
+/// undefined, λ ≤ 2).
+pub fn uncertainties<R: latentbki::rand_xoshiro::rand_core::RngCore>(
+    v: &VoxelStats<D>,
+    decoder: &Decoder,
+    draws: u32,
+    rng: &mut R,
+) -> Option<(f32, f32, f32)> {
+    let e = v.e_optimality()?;
+    let d = v.d_optimality()?;
+    let mut var = [0.0f32; super::methods::K];
+    let s = v.sampling_uncertainty(decoder, rng, draws, &mut var)?;
+    Some((e, d, s))
+}
+
+fn run_one(
+    method: Method,
+    inputs: &Inputs<'_>,
+    score: bool,
+    link: Option<Box<dyn VoxelSink>>,
+    bar: &ProgressBar,
+) -> anyhow::Result<MethodResult> {
+    let Inputs {
+        frames,
+        config,
+        dec,
+        setup,
+    } = *inputs;
+    let start = Instant::now();
+    let mut mapper = build(method, config, dec, setup, link)?;
+    let mut confusion = Confusion::new(dec.classes.len());
+    let mut scored = Vec::new();
+    for (t, f) in frames.iter().enumerate() {
+        mapper.integrate(f);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(mix_all(&[setup.seed, t as u64, 0x5A3]));
+        for (i, ((p, c), own)) in f
+            .held_points
+            .iter()
+            .zip(&f.held_classes)
+            .zip(&f.held_features)
+            .enumerate()
+        {
+            let pred = mapper.predict(&dec.decoder, *p, own);
+            confusion.add(usize::from(*c), pred);
+            if score {
+                if let (Some(pred), Some(v)) = (pred, mapper.posterior(*p)) {
+                    if let Some((e, d, s)) =
+                        uncertainties(&v, &dec.decoder, setup.sampling_draws, &mut rng)
+                    {
+                        scored.push(Scored {
+                            truth: *c,
+                            predicted: pred as u16,
+                            e_opt: e,
+                            d_opt: d,
+                            sampling: s,
+                            random: unit(mix_all(&[setup.seed, t as u64, i as u64, 0x3A4D])),
+                        });
+                    }
+                }
+            }
+        }
+        bar.inc(1);
+    }
+    Ok(MethodResult {
+        method,
+        voxels: mapper.voxels(),
+        confusion,
+        seconds: start.elapsed().as_secs_f64(),
+        scored,
+        mapper,
+    })
+}
+
+/// What every method of a run shares: the frames, the map configuration, the decoding and the setup.
+#[derive(Clone, Copy)]
+pub struct Inputs<'a> {
+    /// The encoded frames.
+    pub frames: &'a [EncodedFrame],
+    /// The scene's map configuration (methods change the filter size).
+    pub config: &'a MapConfig,
+    /// PCA, codebook, encoder.
+    pub dec: &'a Decoding,
+    /// The experiment's settings.
+    pub setup: &'a Setup,
+}
+
+/// A progress bar over `len` steps (drawn only on a terminal).
+pub fn progress(len: u64, message: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:28} [{bar:40}] {pos}/{len} {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(message.to_string());
+    bar
+}
+
+/// Worker threads: the machine's cores (at least one); stacks are large because the device map is.
+fn workers() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// Run `methods` over the same frames in parallel; `score` names the method whose held-out points get
+/// uncertainties; `link` receives the device map's evictions. Results come back in the order asked.
+pub fn run(
+    methods: &[Method],
+    inputs: &Inputs<'_>,
+    score: Option<Method>,
+    link: Option<Box<dyn VoxelSink>>,
+    message: &str,
+) -> anyhow::Result<Vec<MethodResult>> {
+    let bar = progress((methods.len() * inputs.frames.len()) as u64, message);
+    let link = Mutex::new(link);
+    // Heaviest first, so the last thread to finish is not the slowest method started last.
+    let weight = |m: &Method| match m {
+        Method::OnDevice(f) | Method::LatentBki(f) => 10 + u32::from(*f),
+        Method::ConvBki(f) => 5 + u32::from(*f),
+        _ => 0,
+    };
+    let mut queue: Vec<usize> = (0..methods.len()).collect();
+    queue.sort_by_key(|&i| std::cmp::Reverse(weight(&methods[i])));
+    let queue = Mutex::new(queue.into_iter());
+    let results: Mutex<Vec<Option<anyhow::Result<MethodResult>>>> =
+        Mutex::new((0..methods.len()).map(|_| None).collect());
+    std::thread::scope(|s| {
+        for _ in 0..workers().min(methods.len()) {
+            std::thread::Builder::new()
+                .stack_size(256 << 20)
+                .spawn_scoped(s, || loop {
+                    let next = queue.lock().expect("queue").next();
+                    let Some(i) = next else { break };
+                    let m = methods[i];
+                    let l = if matches!(m, Method::OnDevice(_)) {
+                        link.lock().expect("link").take()
+                    } else {
+                        None
+                    };
+                    let r = run_one(m, inputs, score == Some(m), l, &bar);
+                    results.lock().expect("results")[i] = Some(r);
+                })
+                .expect("spawning a worker");
+        }
+    });
+    bar.finish_and_clear();
+    results
+        .into_inner()
+        .expect("results")
+        .into_iter()
+        .map(|r| r.expect("every method ran"))
+        .collect()
+}
+
+/// One point of the sparsity sweep.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SweepPoint {
+    /// Sensor budget: points (or pixels) per frame asked for.
+    pub budget: usize,
+    /// Points per frame actually returned, on average.
+    pub points_per_frame: f64,
+    /// Filter size.
+    pub filter: u8,
+    /// Accuracy.
+    pub accuracy: f64,
+    /// mIoU.
+    pub miou: f64,
+}
+
+/// Accuracy and mIoU of LatentBKI with each filter size at each sensor budget (paper Fig. 3).
+pub fn sparsity_sweep(
+    make: &dyn Fn(usize) -> Sequence,
+    budgets: &[usize],
+    filters: &[u8],
+    dec: &Decoding,
+    setup: &Setup,
+) -> anyhow::Result<Vec<SweepPoint>> {
+    let mut out = Vec::new();
+    for &b in budgets {
+        let seq = make(b);
+        let frames = encode(&seq, dec, setup);
+        let ppf = seq.points() as f64 / seq.frames.len().max(1) as f64;
+        let methods: Vec<Method> = filters.iter().map(|&f| Method::LatentBki(f)).collect();
+        let res = run(
+            &methods,
+            &Inputs {
+                frames: &frames,
+                config: &seq.config,
+                dec,
+                setup,
+            },
+            None,
+            None,
+            &format!("sweep {b} pts/frame"),
+        )?;
+        for (f, r) in filters.iter().zip(res) {
+            out.push(SweepPoint {
+                budget: b,
+                points_per_frame: ppf,
+                filter: *f,
+                accuracy: r.confusion.accuracy(),
+                miou: r.confusion.miou(),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// The results table in Markdown.
+pub fn table(scene: &str, results: &[MethodResult], notes: &str) -> String {
+    let mut s = format!("### {scene}\n\n{notes}\n\n| Method | Acc. (%) | mIoU (%) | Unknown (%) | Acc. where observed (%) | Voxels | Uncertainty |\n|---|---:|---:|---:|---:|---:|---|\n");
+    for r in results {
+        let total = r.confusion.total().max(1) as f64;
+        s += &format!(
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} |\n",
+            r.method.label(),
+            100.0 * r.confusion.accuracy(),
+            100.0 * r.confusion.miou(),
+            100.0 * r.confusion.unknown() as f64 / total,
+            100.0 * r.confusion.accuracy() * total / (total - r.confusion.unknown() as f64).max(1.0),
+            if r.voxels == 0 {
+                "–".to_string()
+            } else {
+                r.voxels.to_string()
+            },
+            if r.method.has_uncertainty() {
+                "yes"
+            } else {
+                "no"
+            },
+        );
+    }
+    s
+}

@@ -1,0 +1,352 @@
+//! The mapping methods compared, behind one small interface, all decoded by the same codebook.
+//!
+//! - **Segmentation only**: each held-out point decoded from its own feature (no map).
+//! - **Heuristic**: each voxel keeps the last feature that fell into it.
+//! - **VLMap-style mean**: each voxel keeps the running mean of the features that fell into it (f = 1, no
+//!   kernel, no uncertainty). Its expectation equals LatentBKI's with f = 1 and λ₀ = 0 — the paper's point
+//!   that LatentBKI is a probabilistic generalisation of the weighted average — so the two rows differ only
+//!   by rounding; LatentBKI adds the uncertainty.
+//! - **ConvBKI-style categorical BKI**: Dirichlet counts per voxel over the network's argmax labels, spread
+//!   by the same sparse kernel table (the closed-dictionary semantic BKI of the paper's Table I).
+//! - **LatentBKI** on the f32 [`ReferenceMap`] (f = 1, 3, 5 …).
+//! - **LatentBKI on the device map**: the quantized, fixed-capacity [`LocalMap`]; voxels it evicts go
+//!   through a [`VoxelSink`] (the base-station link plugs in there) and are merged back for evaluation, as
+//!   the base station does.
+//!
+//! Every map method uses the core's keys, kernel table, locate/spread and update: no second copy of the math.
+
+use crate::ReferenceMap;
+use latentbki::local_map::LocalMap;
+use latentbki::{locate, spread, Codebook, KernelLut, MapConfig, VoxelKey, VoxelStats};
+use std::collections::HashMap;
+
+/// Feature dimension of every map here (the paper's 64).
+pub const D: usize = 64;
+/// Codebook capacity (the vocabulary has 50 phrases).
+pub const K: usize = 64;
+/// A compressed feature.
+pub type Feature = [f32; D];
+/// The decoder all methods share.
+pub type Decoder = Codebook<D, K>;
+
+/// One frame as the maps see it: the integrated 80 % and the held-out 20 %.
+#[derive(Clone, Debug)]
+pub struct EncodedFrame {
+    /// Sensor → map pose.
+    pub pose: latentbki::nalgebra::Isometry3<f32>,
+    /// Integrated points, sensor frame.
+    pub points: Vec<[f32; 3]>,
+    /// Integrated points, map frame.
+    pub map_points: Vec<[f32; 3]>,
+    /// Their compressed features.
+    pub features: Vec<Feature>,
+    /// Held-out points, map frame.
+    pub held_points: Vec<[f32; 3]>,
+    /// Their true classes.
+    pub held_classes: Vec<u16>,
+    /// Their own (noisy) features, for segmentation only.
+    pub held_features: Vec<Feature>,
+}
+
+/// A mapping method under evaluation.
+pub trait Mapper: Send {
+    /// Integrate one frame's input points.
+    fn integrate(&mut self, frame: &EncodedFrame);
+    /// The class predicted at a held-out point (`own` is the point's own feature); `None` = unknown.
+    fn predict(&self, decoder: &Decoder, position: [f32; 3], own: &Feature) -> Option<usize>;
+    /// The LatentBKI posterior of the voxel at `position`, for methods that have one.
+    fn posterior(&self, _position: [f32; 3]) -> Option<VoxelStats<D>> {
+        None
+    }
+    /// Voxels held (0 for methods without a map).
+    fn voxels(&self) -> usize;
+    /// Every voxel's LatentBKI posterior, sorted by key (empty for methods without one).
+    fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
+        Vec::new()
+    }
+}
+
+fn key_of(position: [f32; 3], config: &MapConfig) -> Option<VoxelKey> {
+    VoxelKey::from_position(position, 1.0 / config.voxel_size()).ok()
+}
+
+fn decode(decoder: &Decoder, mu: &Feature) -> Option<usize> {
+    decoder.argmax(mu).map(|(c, _)| c)
+}
+
+/// Decode each point's own feature.
+pub struct SegmentationOnly;
+
+impl Mapper for SegmentationOnly {
+    fn integrate(&mut self, _frame: &EncodedFrame) {}
+    fn predict(&self, decoder: &Decoder, _p: [f32; 3], own: &Feature) -> Option<usize> {
+        decode(decoder, own)
+    }
+    fn voxels(&self) -> usize {
+        0
+    }
+}
+
+/// Last observation in the voxel wins.
+pub struct Heuristic {
+    config: MapConfig,
+    voxels: HashMap<VoxelKey, Feature>,
+}
+
+impl Heuristic {
+    /// An empty map with the voxel size of `config`.
+    pub fn new(config: MapConfig) -> Self {
+        Self {
+            config,
+            voxels: HashMap::new(),
+        }
+    }
+}
+
+impl Mapper for Heuristic {
+    fn integrate(&mut self, frame: &EncodedFrame) {
+        for (p, y) in frame.map_points.iter().zip(&frame.features) {
+            if let Some(k) = key_of(*p, &self.config) {
+                self.voxels.insert(k, *y);
+            }
+        }
+    }
+    fn predict(&self, decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
+        decode(decoder, self.voxels.get(&key_of(p, &self.config)?)?)
+    }
+    fn voxels(&self) -> usize {
+        self.voxels.len()
+    }
+}
+
+/// VLMap-style running mean of the features in each voxel.
+pub struct RunningMean {
+    config: MapConfig,
+    voxels: HashMap<VoxelKey, (u32, Box<[f64; D]>)>,
+}
+
+impl RunningMean {
+    /// An empty map with the voxel size of `config`.
+    pub fn new(config: MapConfig) -> Self {
+        Self {
+            config,
+            voxels: HashMap::new(),
+        }
+    }
+}
+
+impl Mapper for RunningMean {
+    fn integrate(&mut self, frame: &EncodedFrame) {
+        for (p, y) in frame.map_points.iter().zip(&frame.features) {
+            if let Some(k) = key_of(*p, &self.config) {
+                let e = self
+                    .voxels
+                    .entry(k)
+                    .or_insert_with(|| (0, Box::new([0.0; D])));
+                e.0 += 1;
+                for (s, v) in e.1.iter_mut().zip(y) {
+                    *s += f64::from(*v);
+                }
+            }
+        }
+    }
+    fn predict(&self, decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
+        let (n, sum) = self.voxels.get(&key_of(p, &self.config)?)?;
+        let mean: Feature = std::array::from_fn(|i| (sum[i] / f64::from(*n)) as f32);
+        decode(decoder, &mean)
+    }
+    fn voxels(&self) -> usize {
+        self.voxels.len()
+    }
+}
+
+/// ConvBKI-style categorical BKI: kernel-weighted Dirichlet counts of the network's argmax labels.
+pub struct CategoricalBki {
+    lut: Box<KernelLut<{ crate::reference_map::HOST_LUT_CAP }>>,
+    decoder: Decoder,
+    voxels: HashMap<VoxelKey, Vec<f32>>,
+}
+
+impl CategoricalBki {
+    /// An empty map; `decoder` plays the segmentation network's classifier head (argmax label per point).
+    pub fn new(config: MapConfig, decoder: Decoder) -> Result<Self, latentbki::ConfigError> {
+        Ok(Self {
+            lut: Box::new(KernelLut::new(&config)?),
+            decoder,
+            voxels: HashMap::new(),
+        })
+    }
+}
+
+impl Mapper for CategoricalBki {
+    fn integrate(&mut self, frame: &EncodedFrame) {
+        let k = self.decoder.len();
+        for (p, y) in frame.map_points.iter().zip(&frame.features) {
+            let (Some(label), Ok((key, cell))) =
+                (decode(&self.decoder, y), locate(&self.lut, *p, y))
+            else {
+                continue;
+            };
+            let voxels = &mut self.voxels;
+            spread(&self.lut, key, cell, |t, w| {
+                voxels.entry(t).or_insert_with(|| vec![0.0; k])[label] += w;
+            });
+        }
+    }
+    fn predict(&self, _decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
+        let key = VoxelKey::from_position(p, self.lut.inv_voxel_size()).ok()?;
+        let counts = self.voxels.get(&key)?;
+        counts
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
+            .map(|(c, _)| c)
+    }
+    fn voxels(&self) -> usize {
+        self.voxels.len()
+    }
+}
+
+/// LatentBKI on the f32 reference map.
+pub struct LatentBki {
+    map: ReferenceMap<D>,
+}
+
+impl LatentBki {
+    /// An empty map.
+    pub fn new(config: MapConfig) -> Result<Self, latentbki::ConfigError> {
+        Ok(Self {
+            map: ReferenceMap::new(config)?,
+        })
+    }
+    /// The map.
+    pub fn map(&self) -> &ReferenceMap<D> {
+        &self.map
+    }
+}
+
+impl Mapper for LatentBki {
+    fn integrate(&mut self, frame: &EncodedFrame) {
+        self.map
+            .integrate(&frame.pose, &frame.points, &frame.features);
+    }
+    fn predict(&self, decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
+        decode(decoder, &self.posterior(p)?.mean)
+    }
+    fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
+        self.map.get(&key_of(p, self.map.config())?).copied()
+    }
+    fn voxels(&self) -> usize {
+        self.map.len()
+    }
+    fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
+        self.map
+            .sorted()
+            .into_iter()
+            .map(|(k, v)| (k, *v))
+            .collect()
+    }
+}
+
+/// Packed code length of a 64-d quantized voxel.
+pub const PACKED: usize = latentbki::packed_len(D);
+/// Voxels the simulated device holds (the host runs it with a generous pool; the firmware's is smaller).
+pub const DEVICE_CAPACITY: usize = 60_000;
+/// The on-device map type the simulator runs.
+pub type DeviceMap = LocalMap<D, DEVICE_CAPACITY, PACKED>;
+
+/// Where the device's evicted voxels go: the base-station link plugs in here.
+pub trait VoxelSink: Send {
+    /// One evicted voxel (key, posterior with the prior included, residency number).
+    fn voxel(&mut self, key: VoxelKey, stats: &VoxelStats<D>, residency: u32);
+}
+
+/// LatentBKI on the quantized on-device map, with its evictions merged back on the host.
+pub struct OnDevice {
+    map: Box<DeviceMap>,
+    /// Evicted voxels merged per key (what the base station's global map holds).
+    evicted: HashMap<VoxelKey, VoxelStats<D>>,
+    prior: VoxelStats<D>,
+    link: Option<Box<dyn VoxelSink>>,
+}
+
+impl OnDevice {
+    /// A device map with a window of `window_radius` metres around the robot; `link` also receives every
+    /// evicted voxel (e.g. the simulated radio to the base station).
+    pub fn new(
+        config: MapConfig,
+        window_radius: f32,
+        link: Option<Box<dyn VoxelSink>>,
+    ) -> Result<Self, latentbki::ConfigError> {
+        let mut map: Box<DeviceMap> = Box::new(LocalMap::EMPTY);
+        map.configure(config, window_radius)?;
+        Ok(Self {
+            prior: *map.prior(),
+            map,
+            evicted: HashMap::new(),
+            link,
+        })
+    }
+
+    /// The device map.
+    pub fn device(&self) -> &DeviceMap {
+        &self.map
+    }
+
+    /// Everything known about a voxel: the merged evictions and the resident posterior.
+    pub fn combined(&self, key: VoxelKey) -> Option<VoxelStats<D>> {
+        match (self.evicted.get(&key), self.map.get(key)) {
+            (Some(e), Some(r)) => {
+                let mut m = *e;
+                m.merge(&r, &self.prior);
+                Some(m)
+            }
+            (Some(e), None) => Some(*e),
+            (None, r) => r,
+        }
+    }
+
+    /// Keys known (evicted or resident).
+    pub fn keys(&self) -> Vec<VoxelKey> {
+        let mut k: Vec<VoxelKey> = self.evicted.keys().copied().collect();
+        k.extend(self.map.iter().map(|v| v.key));
+        k.sort_unstable();
+        k.dedup();
+        k
+    }
+}
+
+impl Mapper for OnDevice {
+    fn integrate(&mut self, frame: &EncodedFrame) {
+        let evicted = &mut self.evicted;
+        let prior = self.prior;
+        let link = &mut self.link;
+        let mut sink = |e: latentbki::Evicted<'_, D>| -> Result<(), latentbki::SinkFull> {
+            if let Some(l) = link.as_mut() {
+                l.voxel(e.key, e.stats, e.residency);
+            }
+            evicted
+                .entry(e.key)
+                .and_modify(|m| m.merge(e.stats, &prior))
+                .or_insert(*e.stats);
+            Ok(())
+        };
+        self.map
+            .integrate(&frame.pose, &frame.points, &frame.features, &mut sink);
+    }
+    fn predict(&self, decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
+        decode(decoder, &self.posterior(p)?.mean)
+    }
+    fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
+        self.combined(key_of(p, self.map.config())?)
+    }
+    fn voxels(&self) -> usize {
+        self.keys().len()
+    }
+    fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
+        self.keys()
+            .into_iter()
+            .filter_map(|k| self.combined(k).map(|v| (k, v)))
+            .collect()
+    }
+}

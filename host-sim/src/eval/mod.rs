@@ -1,0 +1,14 @@
+//! Evaluation: the paper's experiments on simulated sequences — methods side by side, metrics,
+//! sparsification, figures.
+//!
+//! [`experiment`] runs the protocol (80 % integrated, 20 % held out, every method on the same input),
+//! [`methods`] holds the compared mappers, [`metrics`] the confusion matrix, [`sparsification`] the
+//! uncertainty analysis, [`figures`] the PNGs, and [`scenes`] the two default experiments the CLI runs.
+
+pub mod cli;
+pub mod experiment;
+pub mod figures;
+pub mod methods;
+pub mod metrics;
+pub mod scenes;
+pub mod sparsification;

@@ -1,0 +1,348 @@
+//! The two experiments the CLI runs — the real LiDAR tile and the procedural house — from scene to table,
+//! curves and pictures.
+//!
+//! The PCA is always fitted on a different sequence than the one evaluated: for the tile, another loop
+//! phase with other sensor and network seeds; indoors, another generated house.
+
+use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
+use super::figures::{self, TopDown};
+use super::methods::{Decoder, VoxelSink};
+use super::sparsification::{self, Sparsification};
+use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
+use crate::sim::sensor::{DepthCamera, MultizoneTof, RangeLidar};
+use crate::sim::tile::{self, Tile, TileRun};
+use crate::sim::vocab::Vocabulary;
+use crate::sim::{mix_all, Sequence};
+use anyhow::{Context, Result};
+use std::path::{Path, PathBuf};
+
+/// Which scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scene {
+    /// The real labelled LiDAR tile.
+    Tile,
+    /// The procedural house.
+    Indoor,
+}
+
+impl Scene {
+    /// Name used for directories and tables.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Tile => "tile",
+            Self::Indoor => "indoor",
+        }
+    }
+    /// The device map's window radius: the sensor's range plus the kernel's reach (the LiDAR sees 10 m; the
+    /// camera's 6 m depth limit is up to 8 m of range in the image corners).
+    pub fn device_window(&self) -> f32 {
+        match self {
+            Self::Tile => 11.0,
+            Self::Indoor => 8.5,
+        }
+    }
+    /// The default free-text query pictured for this scene.
+    pub fn default_query(&self) -> &'static str {
+        match self {
+            Self::Tile => "tree",
+            Self::Indoor => "a place to sleep",
+        }
+    }
+}
+
+/// Scene-side options.
+#[derive(Clone, Debug)]
+pub struct SceneOptions {
+    /// Frames on the tile loop.
+    pub tile_frames: usize,
+    /// Points per frame on the tile (LiDAR budget).
+    pub tile_points: usize,
+    /// Pixels per frame indoors (camera budget).
+    pub indoor_pixels: usize,
+    /// Seed of the house layout.
+    pub layout_seed: u64,
+    /// Indoor sensor: the multizone ToF instead of the depth camera.
+    pub indoor_tof: bool,
+    /// Budgets of the sparsity sweep (empty = no sweep), per scene.
+    pub sweep_tile: Vec<usize>,
+    /// Indoor sweep budgets.
+    pub sweep_indoor: Vec<usize>,
+    /// Filter sizes of the sweep.
+    pub sweep_filters: Vec<u8>,
+    /// Queries to picture (the scene's default if empty).
+    pub queries: Vec<String>,
+}
+
+impl Default for SceneOptions {
+    fn default() -> Self {
+        Self {
+            tile_frames: 60,
+            tile_points: 3000,
+            indoor_pixels: DepthCamera::default().pixels_per_frame,
+            layout_seed: 1,
+            indoor_tof: false,
+            sweep_tile: vec![100, 300, 1000, 3000],
+            sweep_indoor: vec![100, 300, 1000, 3072],
+            sweep_filters: vec![1, 3, 5],
+            queries: Vec::new(),
+        }
+    }
+}
+
+/// Builds a scene's sequence at a given sensor budget; `train` selects the PCA training sequence.
+pub struct SceneSource {
+    scene: Scene,
+    tile: Option<Tile>,
+    houses: Option<(IndoorScene, IndoorScene)>,
+    options: SceneOptions,
+    seed: u64,
+}
+
+impl SceneSource {
+    /// Load (tile) or generate (houses) the scene.
+    pub fn new(scene: Scene, options: &SceneOptions, seed: u64) -> Result<Self> {
+        let (tile, houses) = match scene {
+            Scene::Tile => (
+                Some(Tile::builtin().context("loading the built-in LAS tile")?),
+                None,
+            ),
+            Scene::Indoor => (
+                None,
+                Some((
+                    IndoorScene::generate(options.layout_seed),
+                    IndoorScene::generate(mix_all(&[options.layout_seed, 0x7EA1])),
+                )),
+            ),
+        };
+        Ok(Self {
+            scene,
+            tile,
+            houses,
+            options: options.clone(),
+            seed,
+        })
+    }
+
+    /// The scene's sequence with `budget` points (tile) or pixels (camera) per frame.
+    pub fn sequence(&self, budget: usize, train: bool) -> Sequence {
+        let seed = if train {
+            mix_all(&[self.seed, 0x7EA1])
+        } else {
+            self.seed
+        };
+        match self.scene {
+            Scene::Tile => {
+                let run = TileRun {
+                    frames: self.options.tile_frames,
+                    lidar: RangeLidar {
+                        points_per_frame: budget,
+                        ..RangeLidar::default()
+                    },
+                    seed,
+                    phase: if train { 0.5 } else { 0.0 },
+                };
+                tile::sequence(self.tile.as_ref().expect("tile loaded"), &run)
+            }
+            Scene::Indoor => {
+                let (test, training) = self.houses.as_ref().expect("houses generated");
+                let sensor = if self.options.indoor_tof {
+                    IndoorSensor::Tof(MultizoneTof::default())
+                } else {
+                    IndoorSensor::Camera(DepthCamera {
+                        pixels_per_frame: budget,
+                        ..DepthCamera::default()
+                    })
+                };
+                let run = IndoorRun {
+                    layout_seed: self.options.layout_seed,
+                    seed,
+                    sensor,
+                    ..IndoorRun::default()
+                };
+                indoor::sequence(if train { training } else { test }, &run)
+            }
+        }
+    }
+
+    /// The default budget of the main run.
+    pub fn budget(&self) -> usize {
+        match self.scene {
+            Scene::Tile => self.options.tile_points,
+            Scene::Indoor => self.options.indoor_pixels,
+        }
+    }
+}
+
+/// Everything one scene's experiment produced.
+pub struct Report {
+    /// Scene.
+    pub scene: Scene,
+    /// Method results, in table order.
+    pub results: Vec<MethodResult>,
+    /// Sparsification of the LatentBKI f = 3 map's uncertainty.
+    pub sparsification: Sparsification,
+    /// The sparsity sweep (empty if not run).
+    pub sweep: Vec<SweepPoint>,
+    /// The Markdown section for this scene.
+    pub markdown: String,
+    /// PNGs written.
+    pub figures: Vec<PathBuf>,
+}
+
+/// Run one scene's experiment and write its pictures into `out/<scene>/`.
+pub fn run(
+    scene: Scene,
+    options: &SceneOptions,
+    setup: &Setup,
+    out: &Path,
+    sweep: bool,
+    link: Option<Box<dyn VoxelSink>>,
+) -> Result<Report> {
+    let setup = &Setup {
+        device_window: scene.device_window(),
+        ..*setup
+    };
+    let vocab = Vocabulary::builtin();
+    let source = SceneSource::new(scene, options, setup.seed)?;
+    let train = source.sequence(source.budget(), true);
+    let test = source.sequence(source.budget(), false);
+    let dec = experiment::decoding(&vocab, &train, setup)?;
+    let frames = experiment::encode(&test, &dec, setup);
+    let methods = Method::all();
+    let results = experiment::run(
+        &methods,
+        &experiment::Inputs {
+            frames: &frames,
+            config: &test.config,
+            dec: &dec,
+            setup,
+        },
+        Some(Method::LatentBki(3)),
+        link,
+        &format!("{}: methods", scene.name()),
+    )?;
+    let scored = &results
+        .iter()
+        .find(|r| r.method == Method::LatentBki(3))
+        .expect("LatentBKI f = 3 ran")
+        .scored;
+    let spars = sparsification::analyse(scored, dec.classes.len());
+    let budgets = match scene {
+        Scene::Tile => &options.sweep_tile,
+        Scene::Indoor => &options.sweep_indoor,
+    };
+    let sweep_points = if sweep && !budgets.is_empty() {
+        experiment::sparsity_sweep(
+            &|b| source.sequence(b, false),
+            budgets,
+            &options.sweep_filters,
+            &dec,
+            setup,
+        )?
+    } else {
+        Vec::new()
+    };
+
+    // Pictures, from the on-device map (what the robot holds plus what it streamed).
+    let dir = out.join(scene.name());
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let device = results
+        .iter()
+        .find(|r| matches!(r.method, Method::OnDevice(_)))
+        .or_else(|| results.iter().find(|r| r.method == Method::LatentBki(3)))
+        .expect("a LatentBKI map ran");
+    let snap = device.mapper.snapshot();
+    let top = TopDown::new(&snap, &test.config, test.cutaway_height);
+    let which = device.method.label();
+    let mut figs = Vec::new();
+    let fig = |e: Box<dyn std::error::Error + Send + Sync>| anyhow::anyhow!("drawing: {e}");
+    let p = dir.join("semantic_map.png");
+    figures::semantic_map(
+        &p,
+        &format!("{}: top-down semantic map ({which})", scene.name()),
+        &top,
+        &test.config,
+        &dec.decoder,
+        &dec.classes,
+    )
+    .map_err(fig)?;
+    figs.push(p);
+    let queries: Vec<String> = if options.queries.is_empty() {
+        vec![scene.default_query().to_string()]
+    } else {
+        options.queries.clone()
+    };
+    for q in &queries {
+        let cb =
+            Decoder::from_pca(&dec.pca, &[*vocab.get(q)?]).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let p = dir.join(format!("query_{}.png", q.replace(' ', "_")));
+        figures::query_heatmap(&p, q, &top, &test.config, &cb).map_err(fig)?;
+        figs.push(p);
+    }
+    let p = dir.join("uncertainty_eopt.png");
+    figures::uncertainty_map(
+        &p,
+        &format!("{}: E-optimality uncertainty ({which})", scene.name()),
+        &top,
+        &test.config,
+    )
+    .map_err(fig)?;
+    figs.push(p);
+    let p = dir.join("sparsification.png");
+    figures::sparsification_plot(&p, scene.name(), &spars).map_err(fig)?;
+    figs.push(p);
+    if !sweep_points.is_empty() {
+        let p = dir.join("sparsity_sweep.png");
+        figures::sweep_plot(&p, scene.name(), &sweep_points).map_err(fig)?;
+        figs.push(p);
+    }
+
+    let held: usize = frames.iter().map(|f| f.held_points.len()).sum();
+    let integrated: usize = frames.iter().map(|f| f.points.len()).sum();
+    let notes = format!(
+        "{} frames, {:.0} points per frame ({} integrated, {} held out); PCA 384 → 64 fitted on another sequence keeps {:.1} % of the variance; voxel {} m, ℓ = {} m. Unknown = held-out points whose voxel the map had not observed (counted wrong).",
+        frames.len(),
+        test.points() as f64 / test.frames.len().max(1) as f64,
+        integrated,
+        held,
+        100.0 * dec.explained_variance,
+        test.config.voxel_size(),
+        test.config.kernel_length(),
+    );
+    let mut md = experiment::table(&format!("Scene: {}", scene.name()), &results, &notes);
+    md += &format!(
+        "\nUncertainty of LatentBKI (f = 3) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points):\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
+        spars.points
+    );
+    for (name, a, m) in &spars.ause {
+        md += &format!("| {name} | {:.2} | {:.2} |\n", 100.0 * a, 100.0 * m);
+    }
+    if !sweep_points.is_empty() {
+        md += "\nSparsity sweep (LatentBKI f32): accuracy / mIoU (%) by points per frame\n\n| points/frame |";
+        let filters = &options.sweep_filters;
+        for f in filters {
+            md += &format!(" f = {f} |");
+        }
+        md += "\n|---:|";
+        md += &"---:|".repeat(filters.len());
+        md += "\n";
+        for &b in budgets {
+            let row: Vec<&SweepPoint> = sweep_points.iter().filter(|p| p.budget == b).collect();
+            if let Some(first) = row.first() {
+                md += &format!("| {:.0} |", first.points_per_frame);
+                for p in &row {
+                    md += &format!(" {:.2} / {:.2} |", 100.0 * p.accuracy, 100.0 * p.miou);
+                }
+                md += "\n";
+            }
+        }
+    }
+    Ok(Report {
+        scene,
+        results,
+        sparsification: spars,
+        sweep: sweep_points,
+        markdown: md,
+        figures: figs,
+    })
+}

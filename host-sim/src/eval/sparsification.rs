@@ -1,0 +1,161 @@
+//! Sparsification curves and AUSE: does the map's uncertainty point at its errors? (paper Fig. 4)
+//!
+//! Held-out points are sorted by the uncertainty of the voxel they fall in; the most uncertain fraction is
+//! removed step by step and accuracy / mIoU are computed on the rest. A useful uncertainty makes the curve
+//! rise. The **oracle** removes the wrong points first (the best any ranking can do); AUSE (area under the
+//! sparsification error, Ilg et al. 2018) is the area between the oracle's curve and the method's, in
+//! accuracy (or mIoU) points, averaged over the removed fractions: 0 is perfect, larger is worse. A random
+//! ranking is shown for reference (its expected curve is flat).
+
+use super::metrics::Confusion;
+
+/// One evaluated point with its uncertainties.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scored {
+    /// True class.
+    pub truth: u16,
+    /// Predicted class.
+    pub predicted: u16,
+    /// E-optimality of its voxel.
+    pub e_opt: f32,
+    /// D-optimality of its voxel.
+    pub d_opt: f32,
+    /// Sampling uncertainty of its voxel.
+    pub sampling: f32,
+    /// A uniform random number (for the random-ranking baseline).
+    pub random: f32,
+}
+
+/// One sparsification curve.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Curve {
+    /// Name of the ranking.
+    pub name: String,
+    /// Fractions removed.
+    pub removed: Vec<f64>,
+    /// Accuracy of the rest at each fraction.
+    pub accuracy: Vec<f64>,
+    /// mIoU of the rest at each fraction.
+    pub miou: Vec<f64>,
+}
+
+/// Fractions removed: 0, 5 %, …, 90 %.
+pub fn default_fractions() -> Vec<f64> {
+    (0..=18).map(|i| f64::from(i) * 0.05).collect()
+}
+
+/// The curve for a ranking: `order` lists point indices from the most to the least uncertain.
+pub fn curve(
+    name: &str,
+    points: &[Scored],
+    order: &[usize],
+    classes: usize,
+    fractions: &[f64],
+) -> Curve {
+    let mut accuracy = Vec::with_capacity(fractions.len());
+    let mut miou = Vec::with_capacity(fractions.len());
+    for &f in fractions {
+        let skip = ((points.len() as f64) * f).round() as usize;
+        let mut c = Confusion::new(classes);
+        for &i in &order[skip.min(order.len())..] {
+            let p = &points[i];
+            c.add(usize::from(p.truth), Some(usize::from(p.predicted)));
+        }
+        accuracy.push(c.accuracy());
+        miou.push(c.miou());
+    }
+    Curve {
+        name: name.to_string(),
+        removed: fractions.to_vec(),
+        accuracy,
+        miou,
+    }
+}
+
+/// Indices sorted by descending key (ties by index, so the order is deterministic).
+pub fn rank_by(points: &[Scored], key: impl Fn(&Scored) -> f32) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..points.len()).collect();
+    idx.sort_by(|&a, &b| key(&points[b]).total_cmp(&key(&points[a])).then(a.cmp(&b)));
+    idx
+}
+
+/// The oracle ranking: wrong points first.
+pub fn oracle_order(points: &[Scored]) -> Vec<usize> {
+    rank_by(points, |p| if p.truth != p.predicted { 1.0 } else { 0.0 })
+}
+
+/// Area between the oracle's and a curve's values, averaged over the fractions (trapezoids).
+pub fn ause(oracle: &[f64], method: &[f64], fractions: &[f64]) -> f64 {
+    if fractions.len() < 2 {
+        return 0.0;
+    }
+    let gap: Vec<f64> = oracle.iter().zip(method).map(|(o, m)| o - m).collect();
+    let mut area = 0.0;
+    for i in 1..fractions.len() {
+        area += (gap[i] + gap[i - 1]) / 2.0 * (fractions[i] - fractions[i - 1]);
+    }
+    area / (fractions[fractions.len() - 1] - fractions[0])
+}
+
+/// All curves of the paper's figure: E-opt, D-opt, sampling, and the oracle and random references.
+#[derive(Clone, Debug)]
+pub struct Sparsification {
+    /// Curves in order: E-optimality, D-optimality, sampling, random, oracle.
+    pub curves: Vec<Curve>,
+    /// AUSE (accuracy, mIoU) per ranking curve except the oracle, same order.
+    pub ause: Vec<(String, f64, f64)>,
+    /// Points evaluated.
+    pub points: usize,
+}
+
+/// Compute every curve and AUSE.
+pub fn analyse(points: &[Scored], classes: usize) -> Sparsification {
+    let fr = default_fractions();
+    let oracle = curve("oracle", points, &oracle_order(points), classes, &fr);
+    let mut curves = vec![
+        curve(
+            "E-optimality",
+            points,
+            &rank_by(points, |p| p.e_opt),
+            classes,
+            &fr,
+        ),
+        curve(
+            "D-optimality",
+            points,
+            &rank_by(points, |p| p.d_opt),
+            classes,
+            &fr,
+        ),
+        curve(
+            "sampling",
+            points,
+            &rank_by(points, |p| p.sampling),
+            classes,
+            &fr,
+        ),
+        curve(
+            "random",
+            points,
+            &rank_by(points, |p| p.random),
+            classes,
+            &fr,
+        ),
+    ];
+    let ause = curves
+        .iter()
+        .map(|c| {
+            (
+                c.name.clone(),
+                ause(&oracle.accuracy, &c.accuracy, &fr),
+                ause(&oracle.miou, &c.miou, &fr),
+            )
+        })
+        .collect();
+    curves.push(oracle);
+    Sparsification {
+        curves,
+        ause,
+        points: points.len(),
+    }
+}

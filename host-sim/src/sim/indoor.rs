@@ -1,0 +1,607 @@
+//! A procedural indoor scene: a house of 2 × 2 rooms with walls, doors, windows and furniture, named with the
+//! paper's Matterport-style categories, generated from a seed.
+//!
+//! Everything is an axis-aligned box (so ray casting is an exact slab test and the scene stays readable):
+//! walls with door openings and lintels, floors, ceilings, windows proud of the outer walls, and furniture
+//! by room type (living room, bedroom, kitchen, bathroom). Every box belongs to an object instance; the
+//! simulated encoder mislabels parts of instances. The robot carries a forward camera on a loop that goes
+//! through every room and door, sweeping its gaze from side to side.
+
+use super::sensor::{DepthCamera, MultizoneTof, RayScene};
+use super::trajectory::{along_polyline, camera_pose};
+use super::{mix_all, unit, ScanFrame, Sequence};
+use latentbki::rand_xoshiro::rand_core::SeedableRng;
+use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
+use latentbki::{KernelMode, MapConfig, Prior};
+
+/// The indoor categories (all in the committed vocabulary).
+pub const INDOOR_CLASSES: [&str; 23] = [
+    "wall", "floor", "ceiling", "door", "window", "table", "chair", "sofa", "bed", "cabinet",
+    "shelf", "toilet", "sink", "bathtub", "plant", "lamp", "tv", "counter", "picture", "cushion",
+    "towel", "curtain", "mirror",
+];
+
+fn class(name: &str) -> u16 {
+    INDOOR_CLASSES
+        .iter()
+        .position(|c| *c == name)
+        .expect("indoor class is listed") as u16
+}
+
+/// An axis-aligned box of one class, part of one object instance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Minimum corner, metres.
+    pub min: [f32; 3],
+    /// Maximum corner, metres.
+    pub max: [f32; 3],
+    /// Class index into [`INDOOR_CLASSES`].
+    pub class: u16,
+    /// Object instance.
+    pub instance: u32,
+}
+
+impl Aabb {
+    /// Ray–box slab test: entry distance of a ray starting outside the box, if it hits within `max_t`.
+    pub fn hit(&self, o: [f32; 3], d: [f32; 3], max_t: f32) -> Option<f32> {
+        let (mut t0, mut t1) = (0.0f32, max_t);
+        for a in 0..3 {
+            if d[a].abs() < 1e-12 {
+                if o[a] < self.min[a] || o[a] > self.max[a] {
+                    return None;
+                }
+                continue;
+            }
+            let inv = 1.0 / d[a];
+            let (mut ta, mut tb) = ((self.min[a] - o[a]) * inv, (self.max[a] - o[a]) * inv);
+            if ta > tb {
+                std::mem::swap(&mut ta, &mut tb);
+            }
+            t0 = t0.max(ta);
+            t1 = t1.min(tb);
+            if t0 > t1 {
+                return None;
+            }
+        }
+        // A ray starting inside the box (the robot's path crossing furniture) does not see it.
+        (t0 > 0.0).then_some(t0)
+    }
+}
+
+/// One room: its floor rectangle and type.
+#[derive(Clone, Copy, Debug)]
+pub struct Room {
+    /// Minimum xy corner (inner face of the walls).
+    pub min: [f32; 2],
+    /// Maximum xy corner.
+    pub max: [f32; 2],
+    /// "living room", "bedroom", "kitchen" or "bathroom".
+    pub kind: &'static str,
+}
+
+/// The generated house.
+#[derive(Clone, Debug)]
+pub struct IndoorScene {
+    /// All boxes.
+    pub boxes: Vec<Aabb>,
+    /// The four rooms (row-major: (0,0), (1,0), (0,1), (1,1)).
+    pub rooms: Vec<Room>,
+    /// Door centres (xy) in the order the loop passes them.
+    pub doors: Vec<[f32; 2]>,
+    /// Ceiling height, metres.
+    pub height: f32,
+}
+
+impl RayScene for IndoorScene {
+    fn cast(&self, o: [f32; 3], d: [f32; 3], max_t: f32) -> Option<(f32, u16, u32)> {
+        let mut best: Option<(f32, u16, u32)> = None;
+        for b in &self.boxes {
+            let limit = best.map_or(max_t, |x| x.0);
+            if let Some(t) = b.hit(o, d, limit) {
+                if best.is_none_or(|x| t < x.0) {
+                    best = Some((t, b.class, b.instance));
+                }
+            }
+        }
+        best
+    }
+}
+
+const WALL: f32 = 0.1;
+const DOOR_W: f32 = 0.9;
+const DOOR_H: f32 = 2.1;
+
+struct Builder {
+    boxes: Vec<Aabb>,
+    next_instance: u32,
+    seed: u64,
+    draws: u64,
+}
+
+impl Builder {
+    fn rand(&mut self) -> f32 {
+        self.draws += 1;
+        unit(mix_all(&[self.seed, self.draws]))
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.rand()
+    }
+    fn instance(&mut self) -> u32 {
+        self.next_instance += 1;
+        self.next_instance
+    }
+    fn push(&mut self, min: [f32; 3], max: [f32; 3], class_name: &str, instance: u32) {
+        self.boxes.push(Aabb {
+            min,
+            max,
+            class: class(class_name),
+            instance,
+        });
+    }
+    fn free(&self, min: [f32; 2], max: [f32; 2], placed: &[([f32; 2], [f32; 2])]) -> bool {
+        placed
+            .iter()
+            .all(|(a, b)| max[0] <= a[0] || min[0] >= b[0] || max[1] <= a[1] || min[1] >= b[1])
+    }
+}
+
+impl IndoorScene {
+    /// Generate a house from a seed.
+    pub fn generate(seed: u64) -> Self {
+        let mut b = Builder {
+            boxes: Vec::new(),
+            next_instance: 1000,
+            seed,
+            draws: 0,
+        };
+        let height: f32 = 2.6;
+        let xs = [0.0, b.range(3.8, 5.0), 0.0];
+        let xs = [xs[0], xs[1], xs[1] + WALL + b.range(3.8, 5.0)];
+        let ys0 = b.range(3.8, 5.0);
+        let ys = [0.0, ys0, ys0 + WALL + b.range(3.8, 5.0)];
+        let mut kinds = ["living room", "bedroom", "kitchen", "bathroom"];
+        // Seeded shuffle of the room types.
+        for i in (1..4).rev() {
+            let j = (b.rand() * (i + 1) as f32) as usize % (i + 1);
+            kinds.swap(i, j);
+        }
+        let mut rooms = Vec::new();
+        for j in 0..2 {
+            for i in 0..2 {
+                let min = [
+                    xs[i] + if i == 1 { WALL } else { 0.0 },
+                    ys[j] + if j == 1 { WALL } else { 0.0 },
+                ];
+                let max = [
+                    if i == 0 { xs[1] } else { xs[2] },
+                    if j == 0 { ys[1] } else { ys[2] },
+                ];
+                rooms.push(Room {
+                    min,
+                    max,
+                    kind: kinds[j * 2 + i],
+                });
+            }
+        }
+        let (x_max, y_max) = (xs[2], ys[2]);
+        // Floor and ceiling per room (separate instances, so a room's floor is its own object).
+        for r in &rooms {
+            let fi = b.instance();
+            b.push(
+                [r.min[0], r.min[1], -0.1],
+                [r.max[0], r.max[1], 0.0],
+                "floor",
+                fi,
+            );
+            let ci = b.instance();
+            b.push(
+                [r.min[0], r.min[1], height],
+                [r.max[0], r.max[1], height + 0.1],
+                "ceiling",
+                ci,
+            );
+        }
+        // Outer walls.
+        let outer = [
+            ([-WALL, -WALL], [x_max + WALL, 0.0]),
+            ([-WALL, y_max], [x_max + WALL, y_max + WALL]),
+            ([-WALL, 0.0], [0.0, y_max]),
+            ([x_max, 0.0], [x_max + WALL, y_max]),
+        ];
+        for (lo, hi) in outer {
+            let w = b.instance();
+            b.push([lo[0], lo[1], 0.0], [hi[0], hi[1], height], "wall", w);
+        }
+        // Interior walls with one door each: x = xs[1] (between columns), y = ys[1] (between rows).
+        let door_y = [(0.0 + ys[1]) / 2.0, (ys[1] + WALL + y_max) / 2.0];
+        let door_x = [(0.0 + xs[1]) / 2.0, (xs[1] + WALL + x_max) / 2.0];
+        let mut doors = Vec::new();
+        // Vertical wall segment pieces along y, for each row of rooms.
+        for (row, &dy) in door_y.iter().enumerate() {
+            let (y0, y1) = if row == 0 {
+                (0.0, ys[1])
+            } else {
+                (ys[1] + WALL, y_max)
+            };
+            let w = b.instance();
+            b.push(
+                [xs[1], y0, 0.0],
+                [xs[1] + WALL, dy - DOOR_W / 2.0, height],
+                "wall",
+                w,
+            );
+            b.push(
+                [xs[1], dy + DOOR_W / 2.0, 0.0],
+                [xs[1] + WALL, y1, height],
+                "wall",
+                w,
+            );
+            b.push(
+                [xs[1], dy - DOOR_W / 2.0, DOOR_H],
+                [xs[1] + WALL, dy + DOOR_W / 2.0, height],
+                "wall",
+                w,
+            );
+            // The threshold: floor under the opening.
+            let t = b.instance();
+            b.push(
+                [xs[1], dy - DOOR_W / 2.0, -0.1],
+                [xs[1] + WALL, dy + DOOR_W / 2.0, 0.0],
+                "floor",
+                t,
+            );
+            // The door leaf stands open, perpendicular to the wall at the opening's edge.
+            let d = b.instance();
+            b.push(
+                [xs[1] + WALL, dy + DOOR_W / 2.0 - 0.04, 0.0],
+                [xs[1] + WALL + DOOR_W, dy + DOOR_W / 2.0, DOOR_H],
+                "door",
+                d,
+            );
+            doors.push((row, [xs[1] + WALL / 2.0, dy]));
+        }
+        for (col, &dx) in door_x.iter().enumerate() {
+            let (x0, x1) = if col == 0 {
+                (0.0, xs[1])
+            } else {
+                (xs[1] + WALL, x_max)
+            };
+            let w = b.instance();
+            b.push(
+                [x0, ys[1], 0.0],
+                [dx - DOOR_W / 2.0, ys[1] + WALL, height],
+                "wall",
+                w,
+            );
+            b.push(
+                [dx + DOOR_W / 2.0, ys[1], 0.0],
+                [x1, ys[1] + WALL, height],
+                "wall",
+                w,
+            );
+            b.push(
+                [dx - DOOR_W / 2.0, ys[1], DOOR_H],
+                [dx + DOOR_W / 2.0, ys[1] + WALL, height],
+                "wall",
+                w,
+            );
+            let t = b.instance();
+            b.push(
+                [dx - DOOR_W / 2.0, ys[1], -0.1],
+                [dx + DOOR_W / 2.0, ys[1] + WALL, 0.0],
+                "floor",
+                t,
+            );
+            let d = b.instance();
+            b.push(
+                [dx - DOOR_W / 2.0, ys[1] - DOOR_W, 0.0],
+                [dx - DOOR_W / 2.0 + 0.04, ys[1], DOOR_H],
+                "door",
+                d,
+            );
+            doors.push((2 + col, [dx, ys[1] + WALL / 2.0]));
+        }
+        // Loop order: room (0,0) → door to (1,0) → (1,0) → door to (1,1) → (1,1) → door to (0,1) → (0,1) → door to (0,0).
+        let loop_doors = vec![doors[0].1, doors[3].1, doors[1].1, doors[2].1];
+        for r in rooms.clone() {
+            furnish(&mut b, &r, height, (x_max, y_max));
+        }
+        Self {
+            boxes: b.boxes,
+            rooms,
+            doors: loop_doors,
+            height,
+        }
+    }
+
+    /// Centre of a room.
+    pub fn room_centre(&self, i: usize) -> [f32; 2] {
+        let r = &self.rooms[i];
+        [(r.min[0] + r.max[0]) / 2.0, (r.min[1] + r.max[1]) / 2.0]
+    }
+
+    /// The robot's loop: room centres and the doors between them.
+    pub fn waypoints(&self) -> Vec<[f32; 2]> {
+        // Rooms are row-major: 0 = (0,0), 1 = (1,0), 2 = (0,1), 3 = (1,1).
+        let order = [0usize, 1, 3, 2];
+        let mut w = Vec::new();
+        for (k, &r) in order.iter().enumerate() {
+            w.push(self.room_centre(r));
+            w.push(self.doors[k]);
+        }
+        w
+    }
+}
+
+/// Furniture by room type: against walls, or in a free spot, avoiding overlaps and the robot's corridors
+/// (the room's midlines, which lead to the doors).
+fn furnish(b: &mut Builder, r: &Room, height: f32, outer: (f32, f32)) {
+    let mut placed: Vec<([f32; 2], [f32; 2])> = Vec::new();
+    let c = [(r.min[0] + r.max[0]) / 2.0, (r.min[1] + r.max[1]) / 2.0];
+    // Keep 0.5 m either side of both midlines free for the robot.
+    placed.push(([c[0] - 0.5, r.min[1]], [c[0] + 0.5, r.max[1]]));
+    placed.push(([r.min[0], c[1] - 0.5], [r.max[0], c[1] + 0.5]));
+    let items: &[&str] = match r.kind {
+        "living room" => &[
+            "sofa", "table", "chair", "chair", "tv", "plant", "lamp", "picture", "shelf", "window",
+            "curtain",
+        ],
+        "bedroom" => &[
+            "bed", "cabinet", "lamp", "picture", "shelf", "window", "curtain", "plant",
+        ],
+        "kitchen" => &[
+            "counter", "table", "chair", "chair", "chair", "cabinet", "plant", "window", "picture",
+        ],
+        _ => &[
+            "toilet", "bathtub", "sink", "mirror", "towel", "cabinet", "window", "curtain",
+        ],
+    };
+    for &item in items {
+        // (width along the wall, depth from the wall, height, bottom), on a wall or free-standing.
+        let (w, d, h, z0, on_wall): (f32, f32, f32, f32, bool) = match item {
+            "sofa" => (b.range(1.8, 2.2), 0.9, 0.8, 0.0, true),
+            "bed" => (1.6, 2.0, 0.5, 0.0, true),
+            "cabinet" => (0.6, 0.5, 0.9, 0.0, true),
+            "shelf" => (0.9, 0.35, 1.8, 0.0, true),
+            "counter" => (2.0, 0.6, 0.9, 0.0, true),
+            "bathtub" => (1.6, 0.75, 0.55, 0.0, true),
+            "toilet" => (0.4, 0.65, 0.75, 0.0, true),
+            "sink" => (0.6, 0.45, 0.85, 0.0, true),
+            "tv" => (1.0, 0.08, 0.6, 1.0, true),
+            "picture" => (0.8, 0.03, 0.6, 1.3, true),
+            "mirror" => (0.6, 0.03, 0.8, 1.1, true),
+            "towel" => (0.5, 0.04, 0.7, 1.0, true),
+            "window" => (1.2, 0.04, 1.1, 0.9, true),
+            "curtain" => (0.4, 0.08, 2.2, 0.2, true),
+            "table" => (1.2, 0.8, 0.75, 0.0, false),
+            "chair" => (0.45, 0.45, 0.9, 0.0, false),
+            "plant" => (0.4, 0.4, 1.0, 0.0, false),
+            _ => (0.3, 0.3, 1.5, 0.0, false), // lamp
+        };
+        for _attempt in 0..30 {
+            let (min, max) = if on_wall {
+                let side = (b.rand() * 4.0) as usize % 4;
+                // Windows only on outer walls.
+                let along_x = side < 2;
+                let span = if along_x {
+                    (r.min[0], r.max[0])
+                } else {
+                    (r.min[1], r.max[1])
+                };
+                if span.1 - span.0 < w + 0.2 {
+                    continue;
+                }
+                let s = b.range(span.0 + 0.1, span.1 - 0.1 - w);
+                // Wall-mounted thin things sit proud of the wall by a centimetre so they are seen first.
+                let (lo, hi) = match side {
+                    0 => ([s, r.min[1] - 0.01], [s + w, r.min[1] + d]),
+                    1 => ([s, r.max[1] - d], [s + w, r.max[1] + 0.01]),
+                    2 => ([r.min[0] - 0.01, s], [r.min[0] + d, s + w]),
+                    _ => ([r.max[0] - d, s], [r.max[0] + 0.01, s + w]),
+                };
+                if item == "window" {
+                    let outer_wall = match side {
+                        0 => r.min[1] <= 0.0,
+                        1 => r.max[1] >= outer.1,
+                        2 => r.min[0] <= 0.0,
+                        _ => r.max[0] >= outer.0,
+                    };
+                    if !outer_wall {
+                        continue;
+                    }
+                }
+                (lo, hi)
+            } else {
+                let x = b.range(r.min[0] + 0.2, r.max[0] - 0.2 - w);
+                let y = b.range(r.min[1] + 0.2, r.max[1] - 0.2 - d);
+                ([x, y], [x + w, y + d])
+            };
+            // Thin wall-mounted items above furniture height do not block floor space.
+            let blocks_floor = z0 < 0.5;
+            if blocks_floor && !b.free(min, max, &placed) {
+                continue;
+            }
+            let inst = b.instance();
+            let top: f32 = (z0 + h).min(height - 0.05);
+            match item {
+                "table" => {
+                    b.push(
+                        [min[0], min[1], 0.70],
+                        [max[0], max[1], 0.75],
+                        "table",
+                        inst,
+                    );
+                    for (lx, ly) in [
+                        (min[0], min[1]),
+                        (max[0] - 0.05, min[1]),
+                        (min[0], max[1] - 0.05),
+                        (max[0] - 0.05, max[1] - 0.05),
+                    ] {
+                        b.push([lx, ly, 0.0], [lx + 0.05, ly + 0.05, 0.70], "table", inst);
+                    }
+                }
+                "chair" => {
+                    b.push(
+                        [min[0], min[1], 0.42],
+                        [max[0], max[1], 0.47],
+                        "chair",
+                        inst,
+                    );
+                    b.push([min[0], min[1], 0.0], [max[0], max[1], 0.42], "chair", inst);
+                    b.push(
+                        [min[0], max[1] - 0.05, 0.47],
+                        [max[0], max[1], 0.9],
+                        "chair",
+                        inst,
+                    );
+                }
+                "bed" | "sofa" => {
+                    b.push([min[0], min[1], 0.0], [max[0], max[1], top], item, inst);
+                    let ci = b.instance();
+                    let cx = (min[0] + max[0]) / 2.0;
+                    let cy = (min[1] + max[1]) / 2.0;
+                    b.push(
+                        [cx - 0.3, cy - 0.2, top],
+                        [cx + 0.3, cy + 0.2, top + 0.15],
+                        "cushion",
+                        ci,
+                    );
+                }
+                "counter" => {
+                    b.push(
+                        [min[0], min[1], 0.0],
+                        [max[0], max[1], top],
+                        "counter",
+                        inst,
+                    );
+                    let si = b.instance();
+                    let cx = (min[0] + max[0]) / 2.0;
+                    let cy = (min[1] + max[1]) / 2.0;
+                    b.push(
+                        [cx - 0.25, cy - 0.2, top],
+                        [cx + 0.25, cy + 0.2, top + 0.12],
+                        "sink",
+                        si,
+                    );
+                }
+                _ => b.push([min[0], min[1], z0], [max[0], max[1], top], item, inst),
+            }
+            if blocks_floor {
+                placed.push((min, max));
+            }
+            break;
+        }
+    }
+}
+
+/// Which sensor the indoor robot carries.
+#[derive(Clone, Copy, Debug)]
+pub enum IndoorSensor {
+    /// A depth camera.
+    Camera(DepthCamera),
+    /// A multizone ToF sensor.
+    Tof(MultizoneTof),
+}
+
+/// How the robot observes the house.
+#[derive(Clone, Copy, Debug)]
+pub struct IndoorRun {
+    /// Seed of the house layout.
+    pub layout_seed: u64,
+    /// Seed of the pixel subsampling.
+    pub seed: u64,
+    /// Metres between frames along the loop.
+    pub step_m: f32,
+    /// The sensor.
+    pub sensor: IndoorSensor,
+}
+
+impl Default for IndoorRun {
+    fn default() -> Self {
+        Self {
+            layout_seed: 1,
+            seed: 1,
+            step_m: 0.25,
+            sensor: IndoorSensor::Camera(DepthCamera::default()),
+        }
+    }
+}
+
+/// The robot's run through a generated house, with the paper's MP3D map configuration (0.05 m voxels,
+/// ℓ = 0.5 m, f = 3).
+pub fn sequence(scene: &IndoorScene, run: &IndoorRun) -> Sequence {
+    let path = along_polyline(&scene.waypoints(), run.step_m);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(run.seed);
+    let frames = path
+        .iter()
+        .enumerate()
+        .map(|(i, (xy, heading))| {
+            // Sweep the gaze ±60° around the heading, so walls and furniture beside the path are seen.
+            let yaw = heading + 1.05 * (i as f32 * 0.35).sin();
+            let pose = camera_pose([xy[0], xy[1], 1.3], yaw, 0.25);
+            let points = match run.sensor {
+                IndoorSensor::Camera(cam) => cam.capture(scene, &pose, &mut rng),
+                IndoorSensor::Tof(tof) => tof.capture(scene, &pose),
+            };
+            ScanFrame { pose, points }
+        })
+        .collect();
+    Sequence {
+        name: "indoor".into(),
+        classes: INDOOR_CLASSES.iter().map(|s| s.to_string()).collect(),
+        config: MapConfig::new(0.05, 0.5, 3, Prior::default(), KernelMode::VoxelOffset)
+            .expect("valid indoor configuration"),
+        frames,
+        cutaway_height: Some(scene.height - 0.15),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slab_test() {
+        let b = Aabb {
+            min: [1.0, -1.0, -1.0],
+            max: [2.0, 1.0, 1.0],
+            class: 0,
+            instance: 0,
+        };
+        assert_eq!(b.hit([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 10.0), Some(1.0));
+        assert_eq!(b.hit([0.0, 0.0, 0.0], [-1.0, 0.0, 0.0], 10.0), None);
+        assert_eq!(b.hit([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 0.5), None);
+        assert_eq!(
+            b.hit([1.5, 0.0, 0.0], [1.0, 0.0, 0.0], 10.0),
+            None,
+            "from inside"
+        );
+        assert_eq!(b.hit([0.0, 5.0, 0.0], [1.0, 0.0, 0.0], 10.0), None);
+    }
+
+    #[test]
+    fn house_is_seeded_and_furnished() {
+        let a = IndoorScene::generate(4);
+        assert_eq!(a.boxes, IndoorScene::generate(4).boxes);
+        assert_ne!(a.boxes, IndoorScene::generate(5).boxes);
+        let classes: std::collections::BTreeSet<u16> = a.boxes.iter().map(|b| b.class).collect();
+        for must in [
+            "wall", "floor", "ceiling", "door", "window", "table", "chair", "bed", "toilet",
+        ] {
+            assert!(classes.contains(&class(must)), "{must} missing");
+        }
+        // The robot's waypoints are inside the house and not inside furniture (floor-level boxes).
+        for w in a.waypoints() {
+            for b in a.boxes.iter().filter(|b| b.class > 4) {
+                let inside = (0..2).all(|k| w[k] > b.min[k] && w[k] < b.max[k])
+                    && b.min[2] < 1.3
+                    && b.max[2] > 1.3;
+                assert!(
+                    !inside,
+                    "waypoint {w:?} inside {:?}",
+                    INDOOR_CLASSES[b.class as usize]
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,114 @@
+//! The committed vocabulary: real 384-d text embeddings of class names and query words.
+//!
+//! `data/text-embeddings.tsv` was computed once by `pocket-encoder` (MiniLM). It is compiled into the binary
+//! so that the simulator's encoder, the decoders and `query` agree on the same vectors and need no model at
+//! run time. Unknown words are an error that lists what is available, never a silent fallback.
+
+use std::fmt;
+
+/// Dimension of the committed text embeddings.
+pub const FULL_DIM: usize = 384;
+
+const TABLE: &str = include_str!("../../data/text-embeddings.tsv");
+
+/// Phrases and their unit-length embeddings, in file order.
+#[derive(Clone, Debug)]
+pub struct Vocabulary {
+    entries: Vec<(String, Box<[f32; FULL_DIM]>)>,
+}
+
+/// A word that is not in the committed vocabulary.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownWord {
+    /// What was asked for.
+    pub word: String,
+    /// Every phrase that is available.
+    pub available: Vec<String>,
+}
+
+impl fmt::Display for UnknownWord {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "\"{}\" is not in the committed vocabulary (host-sim/data/text-embeddings.tsv); available: {}",
+            self.word,
+            self.available.join(", ")
+        )
+    }
+}
+
+impl std::error::Error for UnknownWord {}
+
+impl Vocabulary {
+    /// The table compiled into the binary.
+    pub fn builtin() -> Self {
+        Self::parse(TABLE).expect("the committed embedding table is well formed")
+    }
+
+    /// Parse `phrase<TAB>v0 … v383` lines; `#` lines are comments.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let mut entries = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            if line.starts_with('#') || line.trim().is_empty() {
+                continue;
+            }
+            let (phrase, values) = line
+                .split_once('\t')
+                .ok_or_else(|| format!("line {}: no tab", n + 1))?;
+            let mut v = Box::new([0.0f32; FULL_DIM]);
+            let mut count = 0;
+            for (i, tok) in values.split_whitespace().enumerate() {
+                if i >= FULL_DIM {
+                    return Err(format!("line {}: more than {FULL_DIM} values", n + 1));
+                }
+                v[i] = tok
+                    .parse()
+                    .map_err(|e| format!("line {}: value {i}: {e}", n + 1))?;
+                count += 1;
+            }
+            if count != FULL_DIM {
+                return Err(format!(
+                    "line {}: {count} values, expected {FULL_DIM}",
+                    n + 1
+                ));
+            }
+            entries.push((phrase.to_string(), v));
+        }
+        Ok(Self { entries })
+    }
+
+    /// All phrases, in file order.
+    pub fn phrases(&self) -> Vec<String> {
+        self.entries.iter().map(|(p, _)| p.clone()).collect()
+    }
+
+    /// The embedding of a phrase (exact match after trimming and lower-casing).
+    pub fn get(&self, phrase: &str) -> Result<&[f32; FULL_DIM], UnknownWord> {
+        let want = phrase.trim().to_lowercase();
+        self.entries
+            .iter()
+            .find(|(p, _)| *p == want)
+            .map(|(_, v)| &**v)
+            .ok_or_else(|| UnknownWord {
+                word: phrase.to_string(),
+                available: self.phrases(),
+            })
+    }
+
+    /// Embeddings of several phrases, in order.
+    pub fn embeddings(&self, phrases: &[&str]) -> Result<Vec<[f32; FULL_DIM]>, UnknownWord> {
+        phrases.iter().map(|p| self.get(p).copied()).collect()
+    }
+}
+
+/// Cosine similarity of two vectors (0 if either is zero).
+pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
+    let dot: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+    let na: f32 = a.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let nb: f32 = b.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if na > 0.0 && nb > 0.0 {
+        dot / (na * nb)
+    } else {
+        0.0
+    }
+}
