@@ -2,7 +2,9 @@
 //! reference map, recorded-data integration and (later) the simulator and base station.
 #![forbid(unsafe_code)]
 
+pub mod base_station;
 pub mod eval;
+pub mod link;
 pub mod npy_io;
 pub mod reference_map;
 pub mod sim;

@@ -1,0 +1,301 @@
+//! Looking at the global map: top-down PNG views and a PLY point cloud.
+//!
+//! A person checks a map by eye first. The top-down views are one pixel block per (x, y) voxel column:
+//! labels and uncertainty show the *topmost* voxel of the column (what a camera above would see), the
+//! query heatmap shows the column's *best* score (so a query finds things under a canopy too). The PLY has
+//! one vertex per voxel at its centre, coloured by label, with the label, score, λ and D-optimality as
+//! extra properties for any point-cloud viewer.
+
+use super::global_map::{argmax, GlobalMap};
+use image::{Rgb, RgbImage};
+use latentbki::{Codebook, VoxelKey};
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::Path;
+
+/// Why an export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// Nothing to draw.
+    #[error("the map is empty: nothing to export")]
+    Empty,
+    /// The map is too wide for an image.
+    #[error("the map spans {0} × {1} voxel columns: too large for an image (max 16384 per side)")]
+    TooLarge(i64, i64),
+    /// Writing failed.
+    #[error("cannot write {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// PNG encoding failed.
+    #[error("cannot encode {path}: {source}")]
+    Image {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: image::ImageError,
+    },
+}
+
+/// Distinct colours for up to 20 labels (then repeating): Tableau 20.
+pub const PALETTE: [[u8; 3]; 20] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+    [188, 189, 34],
+    [23, 190, 207],
+    [174, 199, 232],
+    [255, 187, 120],
+    [152, 223, 138],
+    [255, 152, 150],
+    [197, 176, 213],
+    [196, 156, 148],
+    [247, 182, 210],
+    [199, 199, 199],
+    [219, 219, 141],
+    [158, 218, 229],
+];
+
+/// Colour of a label.
+pub fn label_colour(label: usize) -> [u8; 3] {
+    PALETTE[label % PALETTE.len()]
+}
+
+/// A perceptual-ish dark-blue → yellow ramp for t in [0, 1] (viridis control points).
+pub fn ramp(t: f32) -> [u8; 3] {
+    const STOPS: [[f32; 3]; 5] = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let i = (t.floor() as usize).min(3);
+    let f = t - i as f32;
+    core::array::from_fn(|c| (STOPS[i][c] + (STOPS[i + 1][c] - STOPS[i][c]) * f).round() as u8)
+}
+
+/// Per (x, y) column: the topmost key and the keys in the column.
+fn columns<const D: usize>(map: &GlobalMap<D>) -> HashMap<(i32, i32), Vec<VoxelKey>> {
+    let mut cols: HashMap<(i32, i32), Vec<VoxelKey>> = HashMap::new();
+    for k in map.sorted_keys() {
+        cols.entry((k.x, k.y)).or_default().push(k); // sorted: the last one is the topmost
+    }
+    cols
+}
+
+struct Grid {
+    x0: i32,
+    y1: i32,
+    w: u32,
+    h: u32,
+}
+
+fn grid(cols: &HashMap<(i32, i32), Vec<VoxelKey>>) -> Result<Grid, ExportError> {
+    let (mut x0, mut x1, mut y0, mut y1) = (i32::MAX, i32::MIN, i32::MAX, i32::MIN);
+    for &(x, y) in cols.keys() {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    if cols.is_empty() {
+        return Err(ExportError::Empty);
+    }
+    let (w, h) = (
+        i64::from(x1) - i64::from(x0) + 1,
+        i64::from(y1) - i64::from(y0) + 1,
+    );
+    if w > 16384 || h > 16384 {
+        return Err(ExportError::TooLarge(w, h));
+    }
+    Ok(Grid {
+        x0,
+        y1,
+        w: w as u32,
+        h: h as u32,
+    })
+}
+
+/// Paint one value per column (None = background), north up, `scale` pixels per voxel.
+fn paint(
+    cols: &HashMap<(i32, i32), Vec<VoxelKey>>,
+    scale: u32,
+    mut colour: impl FnMut(&[VoxelKey]) -> Option<[u8; 3]>,
+) -> Result<RgbImage, ExportError> {
+    let g = grid(cols)?;
+    let scale = scale.max(1);
+    let mut img = RgbImage::from_pixel(g.w * scale, g.h * scale, Rgb([255, 255, 255]));
+    for (&(x, y), keys) in cols {
+        if let Some(c) = colour(keys) {
+            let (px, py) = ((x - g.x0) as u32 * scale, (g.y1 - y) as u32 * scale);
+            for dy in 0..scale {
+                for dx in 0..scale {
+                    img.put_pixel(px + dx, py + dy, Rgb(c));
+                }
+            }
+        }
+    }
+    Ok(img)
+}
+
+fn save_png(img: &RgbImage, path: &Path) -> Result<(), ExportError> {
+    img.save_with_format(path, image::ImageFormat::Png)
+        .map_err(|source| ExportError::Image {
+            path: path.display().to_string(),
+            source,
+        })
+}
+
+/// Top-down label image: the topmost voxel's best category per column.
+pub fn label_image<const D: usize, const K: usize>(
+    map: &GlobalMap<D>,
+    vocab: &Codebook<D, K>,
+    scale: u32,
+) -> Result<RgbImage, ExportError> {
+    let cols = columns(map);
+    paint(&cols, scale, |keys| {
+        let top = keys.last()?;
+        map.label(top, vocab).map(|(l, _)| label_colour(l))
+    })
+}
+
+/// Top-down heatmap of a text query (category `category` of `query`): the best score in each column,
+/// normalised over the map's range of column scores.
+pub fn heat_image<const D: usize, const K: usize>(
+    map: &GlobalMap<D>,
+    query: &Codebook<D, K>,
+    category: usize,
+    scale: u32,
+) -> Result<RgbImage, ExportError> {
+    let cols = columns(map);
+    let best: HashMap<(i32, i32), f32> = cols
+        .iter()
+        .map(|(c, keys)| {
+            let s = keys
+                .iter()
+                .filter_map(|k| map.heat(k, query, category))
+                .fold(f32::NEG_INFINITY, f32::max);
+            (*c, s)
+        })
+        .collect();
+    let (lo, hi) = best
+        .values()
+        .filter(|v| v.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let span = (hi - lo).max(1e-6);
+    paint(&cols, scale, |keys| {
+        let c = (keys[0].x, keys[0].y);
+        let v = best[&c];
+        v.is_finite().then(|| ramp((v - lo) / span))
+    })
+}
+
+/// Top-down uncertainty: log D-optimality of the topmost voxel with λ > 2, normalised over the map.
+pub fn uncertainty_image<const D: usize>(
+    map: &GlobalMap<D>,
+    scale: u32,
+) -> Result<RgbImage, ExportError> {
+    let cols = columns(map);
+    let value = |keys: &[VoxelKey]| {
+        keys.iter()
+            .rev()
+            .find_map(|k| map.uncertainty(k).and_then(|u| u.d_optimality))
+            .filter(|v| *v > 0.0)
+            .map(f32::ln)
+    };
+    let (lo, hi) = cols
+        .values()
+        .filter_map(|k| value(k))
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    let span = (hi - lo).max(1e-6);
+    paint(&cols, scale, |keys| {
+        value(keys).map(|v| ramp((v - lo) / span))
+    })
+}
+
+/// Write the three views: `<prefix>-labels.png`, `<prefix>-heat.png` (if a query is given),
+/// `<prefix>-uncertainty.png`. Returns the files written.
+pub fn write_pngs<const D: usize, const K: usize>(
+    map: &GlobalMap<D>,
+    vocab: &Codebook<D, K>,
+    query: Option<(&Codebook<D, K>, usize)>,
+    prefix: &Path,
+    scale: u32,
+) -> Result<Vec<std::path::PathBuf>, ExportError> {
+    let name = |s: &str| {
+        let mut p = prefix.as_os_str().to_owned();
+        p.push(s);
+        std::path::PathBuf::from(p)
+    };
+    let mut written = Vec::new();
+    let p = name("-labels.png");
+    save_png(&label_image(map, vocab, scale)?, &p)?;
+    written.push(p);
+    if let Some((q, c)) = query {
+        let p = name("-heat.png");
+        save_png(&heat_image(map, q, c, scale)?, &p)?;
+        written.push(p);
+    }
+    let p = name("-uncertainty.png");
+    save_png(&uncertainty_image(map, scale)?, &p)?;
+    written.push(p);
+    Ok(written)
+}
+
+/// Write an ASCII PLY: one vertex per voxel centre with label colour, label, score, λ, D-optimality.
+pub fn write_ply<const D: usize, const K: usize>(
+    map: &GlobalMap<D>,
+    vocab: &Codebook<D, K>,
+    path: &Path,
+) -> Result<(), ExportError> {
+    let io = |source| ExportError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    let f = std::fs::File::create(path).map_err(io)?;
+    let mut w = std::io::BufWriter::new(f);
+    let posteriors = map.posteriors();
+    let voxel = map.map_config().voxel_size();
+    write!(
+        w,
+        "ply\nformat ascii 1.0\ncomment latentbki global map\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         property int label\nproperty float score\nproperty float lambda\nproperty float d_optimality\n\
+         end_header\n",
+        posteriors.len()
+    )
+    .map_err(io)?;
+    for (k, p) in &posteriors {
+        let c = k.centroid(voxel);
+        let (label, score) = argmax(vocab, &p.mean).map_or((-1, 0.0), |(l, s)| (l as i64, s));
+        let rgb = if label >= 0 {
+            label_colour(label as usize)
+        } else {
+            [128; 3]
+        };
+        let d = p.d_optimality().unwrap_or(-1.0); // -1: undefined (λ ≤ 2)
+        writeln!(
+            w,
+            "{} {} {} {} {} {} {} {} {} {}",
+            c[0], c[1], c[2], rgb[0], rgb[1], rgb[2], label, score, p.lambda, d
+        )
+        .map_err(io)?;
+    }
+    w.flush().map_err(io)
+}

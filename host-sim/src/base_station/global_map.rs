@@ -1,0 +1,349 @@
+//! The base station's global map: every robot's summaries merged exactly, nothing counted twice.
+//!
+//! A voxel's observations arrive as *contributions*, one per `(robot, session, residency)`: each is the
+//! posterior of the observations made while that voxel was resident in that robot's map, so different
+//! contributions are disjoint and are merged (`VoxelStats::merge` against the shared prior — the core's
+//! operation, not a second copy). Within one contribution, live updates replace each other (newest frame
+//! sequence number wins) and the final (evicted) summary closes it; its id is remembered, so a repeated or
+//! late copy is ignored instead of merged again. Settled contributions are folded into one posterior per
+//! voxel; only live ones are kept apart until they close.
+
+use latentbki::wire::{SessionConfig, Summary};
+use latentbki::{Codebook, MapConfig, VoxelKey, VoxelStats};
+use std::collections::HashMap;
+
+/// Largest vocabulary the base station decodes against.
+pub const VOCAB_CAP: usize = 64;
+
+/// The origin of one contribution to a voxel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct ContributionId {
+    /// Robot id.
+    pub robot: u16,
+    /// That robot's session.
+    pub session: u32,
+    /// Residency number of the voxel in that session.
+    pub residency: u32,
+}
+
+/// A live (not yet final) contribution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LiveContribution<const D: usize> {
+    /// Whose.
+    pub id: ContributionId,
+    /// Frame sequence number it came in.
+    pub seq: u32,
+    /// The robot's posterior for it.
+    pub stats: VoxelStats<D>,
+}
+
+/// One voxel of the global map.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlobalVoxel<const D: usize> {
+    /// Prior ⊕ every closed contribution.
+    pub settled: VoxelStats<D>,
+    /// Ids of the closed contributions (their copies are ignored).
+    pub closed: Vec<ContributionId>,
+    /// Open contributions, newest copy of each.
+    pub live: Vec<LiveContribution<D>>,
+}
+
+/// What applying one summary did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Applied {
+    /// A final summary closed its contribution and was merged.
+    Merged,
+    /// A live summary opened or replaced its contribution.
+    Updated,
+    /// An older copy than the one held, or a live copy of a closed contribution: ignored.
+    Stale,
+    /// A second final copy of a closed contribution: ignored.
+    DuplicateFinal,
+}
+
+/// Per-voxel uncertainty of the merged posterior (§III-D).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Uncertainty {
+    /// Largest predictive variance (λ > 2).
+    pub e_optimality: Option<f32>,
+    /// Geometric mean of the predictive variances (λ > 2).
+    pub d_optimality: Option<f32>,
+}
+
+/// The global sparse map.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlobalMap<const D: usize> {
+    config: SessionConfig,
+    map_config: MapConfig,
+    prior: VoxelStats<D>,
+    voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
+}
+
+/// `a` is newer than `b` in a wrapping u32 sequence.
+fn newer(a: u32, b: u32) -> bool {
+    let d = a.wrapping_sub(b);
+    d != 0 && d < 1 << 31
+}
+
+impl<const D: usize> GlobalMap<D> {
+    /// An empty map for sessions of this configuration.
+    pub fn new(config: SessionConfig) -> Result<Self, latentbki::wire::WireError> {
+        config.validate(D)?;
+        let map_config = config
+            .map_config()
+            .map_err(|_| latentbki::wire::WireError::BadConfig)?;
+        Ok(Self {
+            config,
+            map_config,
+            prior: VoxelStats::from_prior(&map_config.prior()),
+            voxels: HashMap::new(),
+        })
+    }
+
+    /// The session configuration every contribution shares.
+    pub fn config(&self) -> &SessionConfig {
+        &self.config
+    }
+    /// The map configuration.
+    pub fn map_config(&self) -> &MapConfig {
+        &self.map_config
+    }
+    /// The prior of an unobserved voxel.
+    pub fn prior(&self) -> &VoxelStats<D> {
+        &self.prior
+    }
+    /// Voxels held.
+    pub fn len(&self) -> usize {
+        self.voxels.len()
+    }
+    /// Whether no voxel is held.
+    pub fn is_empty(&self) -> bool {
+        self.voxels.is_empty()
+    }
+    /// Raw access to a voxel's contributions.
+    pub fn voxel(&self, key: &VoxelKey) -> Option<&GlobalVoxel<D>> {
+        self.voxels.get(key)
+    }
+    /// All voxels (unordered).
+    pub fn voxels(&self) -> impl Iterator<Item = (&VoxelKey, &GlobalVoxel<D>)> {
+        self.voxels.iter()
+    }
+    /// Keys, sorted.
+    pub fn sorted_keys(&self) -> Vec<VoxelKey> {
+        let mut k: Vec<_> = self.voxels.keys().copied().collect();
+        k.sort();
+        k
+    }
+
+    /// Insert a voxel as stored (for loading a saved map).
+    pub(crate) fn insert_raw(&mut self, key: VoxelKey, voxel: GlobalVoxel<D>) {
+        self.voxels.insert(key, voxel);
+    }
+
+    /// Apply one decoded summary from `(robot, session)`'s frame `seq`.
+    pub fn apply(&mut self, robot: u16, session: u32, seq: u32, s: &Summary<D>) -> Applied {
+        let id = ContributionId {
+            robot,
+            session,
+            residency: s.residency,
+        };
+        let prior = self.prior;
+        let v = self.voxels.entry(s.key).or_insert_with(|| GlobalVoxel {
+            settled: prior,
+            closed: Vec::new(),
+            live: Vec::new(),
+        });
+        if v.closed.contains(&id) {
+            return if s.is_final {
+                Applied::DuplicateFinal
+            } else {
+                Applied::Stale
+            };
+        }
+        let at = v.live.iter().position(|c| c.id == id);
+        if s.is_final {
+            if let Some(i) = at {
+                v.live.swap_remove(i);
+            }
+            v.settled.merge(&s.stats, &prior);
+            v.closed.push(id);
+            return Applied::Merged;
+        }
+        match at {
+            Some(i) if !newer(seq, v.live[i].seq) => Applied::Stale,
+            Some(i) => {
+                v.live[i] = LiveContribution {
+                    id,
+                    seq,
+                    stats: s.stats,
+                };
+                Applied::Updated
+            }
+            None => {
+                v.live.push(LiveContribution {
+                    id,
+                    seq,
+                    stats: s.stats,
+                });
+                Applied::Updated
+            }
+        }
+    }
+
+    /// The merged posterior of a voxel: settled ⊕ every live contribution.
+    pub fn posterior(&self, key: &VoxelKey) -> Option<VoxelStats<D>> {
+        self.voxels.get(key).map(|v| self.merged(v))
+    }
+
+    fn merged(&self, v: &GlobalVoxel<D>) -> VoxelStats<D> {
+        let mut p = v.settled;
+        let mut live: Vec<_> = v.live.iter().collect();
+        live.sort_by_key(|c| c.id); // order-independent result
+        for c in live {
+            p.merge(&c.stats, &self.prior);
+        }
+        p
+    }
+
+    /// Every voxel's merged posterior, sorted by key.
+    pub fn posteriors(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
+        self.sorted_keys()
+            .into_iter()
+            .map(|k| (k, self.merged(&self.voxels[&k])))
+            .collect()
+    }
+
+    /// Σ (λ − λ₀) over voxels: the kernel mass the map holds (conserved by merging).
+    pub fn kernel_mass(&self) -> f64 {
+        self.voxels
+            .values()
+            .map(|v| f64::from(self.merged(v).lambda - self.prior.lambda))
+            .sum()
+    }
+
+    /// The most similar category of a voxel and its cosine score.
+    pub fn label<const K: usize>(
+        &self,
+        key: &VoxelKey,
+        vocab: &Codebook<D, K>,
+    ) -> Option<(usize, f32)> {
+        self.posterior(key).and_then(|p| argmax(vocab, &p.mean))
+    }
+
+    /// Cosine score of one category (a text query) at a voxel.
+    pub fn heat<const K: usize>(
+        &self,
+        key: &VoxelKey,
+        query: &Codebook<D, K>,
+        category: usize,
+    ) -> Option<f32> {
+        self.posterior(key).map(|p| query.score(&p.mean, category))
+    }
+
+    /// E- and D-optimality of a voxel's merged posterior.
+    pub fn uncertainty(&self, key: &VoxelKey) -> Option<Uncertainty> {
+        self.posterior(key).map(|p| Uncertainty {
+            e_optimality: p.e_optimality(),
+            d_optimality: p.d_optimality(),
+        })
+    }
+}
+
+/// Index and score of the best category for a mean (None for an empty vocabulary).
+pub fn argmax<const D: usize, const K: usize>(
+    vocab: &Codebook<D, K>,
+    mean: &[f32; D],
+) -> Option<(usize, f32)> {
+    let mut scores = [0.0f32; K];
+    let n = vocab.scores(mean, &mut scores);
+    scores[..n]
+        .iter()
+        .copied()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use latentbki::SummaryCodec;
+
+    const D: usize = 4;
+
+    fn map() -> GlobalMap<D> {
+        let c = SessionConfig::new(
+            &MapConfig::default(),
+            D,
+            SummaryCodec {
+                mean_bits: 8,
+                psi_blocks: 4,
+            },
+            0,
+        );
+        GlobalMap::new(c).unwrap()
+    }
+
+    fn summary(residency: u32, is_final: bool, lambda: f32, m: f32) -> Summary<D> {
+        Summary {
+            key: VoxelKey::new(1, 2, 3),
+            residency,
+            is_final,
+            stats: VoxelStats {
+                lambda,
+                mean: [m; D],
+                psi: [1.0 + lambda; D],
+            },
+            psi_max: 1.0 + lambda,
+            psi_geo: 1.0 + lambda,
+        }
+    }
+
+    #[test]
+    fn replace_live_merge_finals_ignore_copies() {
+        let mut g = map();
+        let k = VoxelKey::new(1, 2, 3);
+        assert_eq!(
+            g.apply(1, 1, 10, &summary(5, false, 1.0, 0.1)),
+            Applied::Updated
+        );
+        assert_eq!(
+            g.apply(1, 1, 12, &summary(5, false, 2.0, 0.2)),
+            Applied::Updated
+        );
+        assert_eq!(
+            g.apply(1, 1, 11, &summary(5, false, 1.5, 0.3)),
+            Applied::Stale
+        );
+        assert_eq!(
+            g.posterior(&k).unwrap().lambda,
+            2.0,
+            "live copies replace, never add"
+        );
+        assert_eq!(
+            g.apply(1, 1, 13, &summary(5, true, 3.0, 0.2)),
+            Applied::Merged
+        );
+        assert_eq!(
+            g.posterior(&k).unwrap().lambda,
+            3.0,
+            "the final closes the live one"
+        );
+        assert_eq!(
+            g.apply(1, 1, 14, &summary(5, true, 3.0, 0.2)),
+            Applied::DuplicateFinal
+        );
+        assert_eq!(
+            g.apply(1, 1, 9, &summary(5, false, 1.0, 0.2)),
+            Applied::Stale
+        );
+        // Another residency, another session, another robot: disjoint, merged.
+        g.apply(1, 1, 20, &summary(6, true, 1.0, 0.5));
+        g.apply(1, 2, 0, &summary(5, true, 1.0, 0.5));
+        g.apply(2, 1, 0, &summary(5, false, 2.0, 0.5));
+        let p = g.posterior(&k).unwrap();
+        assert_eq!(p.lambda, 3.0 + 1.0 + 1.0 + 2.0);
+        let want = (3.0 * 0.2 + 4.0 * 0.5) / 7.0;
+        assert!((p.mean[0] - want).abs() < 1e-6);
+        assert!((g.kernel_mass() - 7.0).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,257 @@
+//! The base station: bytes from any number of robots in, one global map out.
+//!
+//! [`BaseStation::receive`] takes bytes in whatever chunks the port delivers. Each frame is checked layer by
+//! layer — COBS and CRC ([`latentbki::frame::FrameDecoder`]), protocol version and parse
+//! ([`latentbki::wire::parse_body`]), configuration id, sequence number per `(robot, session)`
+//! ([`latentbki::frame::SeqTracker`]) and every summary in it — and is applied to the [`GlobalMap`] only if
+//! all of it passes; every refusal is counted by reason, every gap in sequence numbers is counted as lost.
+//! Saving, loading, queries and exports live in the submodules.
+
+pub mod export;
+pub mod file;
+pub mod global_map;
+
+pub use global_map::{Applied, ContributionId, GlobalMap, GlobalVoxel, Uncertainty, VOCAB_CAP};
+
+use latentbki::frame::{DecoderStats, Feed, FrameDecoder, SeqTracker, SeqVerdict};
+use latentbki::wire::{parse_body, LinkStats, Message, SessionConfig, Summary, WireError};
+use std::collections::BTreeMap;
+
+/// Largest encoded frame the base station accepts (bytes between delimiters).
+pub const MAX_FRAME: usize = 4096;
+
+/// Frames and summaries refused or ignored after COBS/CRC, by reason.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Rejections {
+    /// Unknown protocol version.
+    pub version: u32,
+    /// Did not parse (or trailing bytes).
+    pub malformed: u32,
+    /// Configuration id is not the map's, or a session header with another configuration.
+    pub wrong_config: u32,
+    /// A summary in the frame was invalid (bad key, λ): the whole frame was refused.
+    pub invalid_voxel: u32,
+    /// Frame received before (by sequence number).
+    pub duplicate_frames: u32,
+    /// Frame older than the sequence window.
+    pub too_old: u32,
+}
+
+/// What the base station has seen.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReceiveStats {
+    /// Runs of bytes refused by the frame layer (COBS, length, CRC, overflow).
+    pub decoder: DecoderStats,
+    /// Refusals after the frame layer.
+    pub rejected: Rejections,
+    /// Frames applied.
+    pub frames: u32,
+    /// Final summaries merged.
+    pub merged: u32,
+    /// Live summaries applied.
+    pub updated: u32,
+    /// Summaries ignored as stale or duplicate copies.
+    pub ignored: u32,
+    /// Frames lost: sum over sessions of sequence numbers never received.
+    pub lost: u32,
+    /// Frames that arrived late (after a newer one) and were still used.
+    pub late: u32,
+}
+
+/// What the base station knows about one `(robot, session)`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SessionState {
+    /// Its sequence numbers.
+    pub seq: SeqTracker,
+    /// Whether its session header arrived.
+    pub header_seen: bool,
+    /// The last link statistics it reported.
+    pub link: Option<LinkStats>,
+}
+
+/// One accepted frame, for audits (enabled with [`BaseStation::keep_journal`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct JournalEntry {
+    /// Robot.
+    pub robot: u16,
+    /// Session.
+    pub session: u32,
+    /// Sequence number.
+    pub seq: u32,
+    /// The frame body as accepted.
+    pub body: Vec<u8>,
+}
+
+/// Receives frames and keeps the global map.
+pub struct BaseStation<const D: usize> {
+    decoder: Box<FrameDecoder<MAX_FRAME>>,
+    expected: Option<SessionConfig>,
+    map: Option<GlobalMap<D>>,
+    sessions: BTreeMap<(u16, u32), SessionState>,
+    stats: ReceiveStats,
+    journal: Option<Vec<JournalEntry>>,
+}
+
+impl<const D: usize> BaseStation<D> {
+    /// A base station whose map has this configuration; sessions of any other are refused.
+    pub fn new(config: SessionConfig) -> Result<Self, WireError> {
+        let map = GlobalMap::new(config)?;
+        Ok(Self::with(Some(config), Some(map)))
+    }
+
+    /// A base station that adopts the configuration of the first valid session header it receives (with
+    /// dimension D); frames before it are refused as `wrong_config`.
+    pub fn adopting() -> Self {
+        Self::with(None, None)
+    }
+
+    /// Continue an existing (e.g. loaded) map.
+    pub fn from_map(map: GlobalMap<D>) -> Self {
+        Self::with(Some(*map.config()), Some(map))
+    }
+
+    fn with(expected: Option<SessionConfig>, map: Option<GlobalMap<D>>) -> Self {
+        Self {
+            decoder: Box::new(FrameDecoder::new()),
+            expected,
+            map,
+            sessions: BTreeMap::new(),
+            stats: ReceiveStats::default(),
+            journal: None,
+        }
+    }
+
+    /// Keep a copy of every accepted frame body (tests audit them against what was sent).
+    pub fn keep_journal(&mut self) {
+        self.journal = Some(Vec::new());
+    }
+    /// The accepted frames, if kept.
+    pub fn journal(&self) -> &[JournalEntry] {
+        self.journal.as_deref().unwrap_or(&[])
+    }
+
+    /// The global map (None until a configuration is known).
+    pub fn map(&self) -> Option<&GlobalMap<D>> {
+        self.map.as_ref()
+    }
+    /// Take the global map out.
+    pub fn into_map(self) -> Option<GlobalMap<D>> {
+        self.map
+    }
+    /// Counters so far.
+    pub fn stats(&self) -> ReceiveStats {
+        let mut s = self.stats;
+        s.decoder = self.decoder.stats();
+        s.lost = self.sessions.values().map(|v| v.seq.lost).sum();
+        s.late = self.sessions.values().map(|v| v.seq.late).sum();
+        s
+    }
+    /// Every `(robot, session)` seen.
+    pub fn sessions(&self) -> &BTreeMap<(u16, u32), SessionState> {
+        &self.sessions
+    }
+
+    /// Feed received bytes (any chunking).
+    pub fn receive(&mut self, mut bytes: &[u8]) {
+        while !bytes.is_empty() {
+            // The body borrows the decoder: copy it out (frames are small) to apply it.
+            let (body, rest) = match self.decoder.feed(bytes) {
+                Feed::NeedMore => return,
+                Feed::Error { rest, .. } => {
+                    bytes = rest;
+                    continue;
+                }
+                Feed::Frame { body, rest } => (body.to_vec(), rest),
+            };
+            bytes = rest;
+            self.frame(&body);
+        }
+    }
+
+    fn frame(&mut self, body: &[u8]) {
+        let (header, message) = match parse_body(body) {
+            Ok(x) => x,
+            Err(WireError::UnknownVersion(_)) => {
+                self.stats.rejected.version += 1;
+                return;
+            }
+            Err(_) => {
+                self.stats.rejected.malformed += 1;
+                return;
+            }
+        };
+        // Adopt the first valid session header's configuration if none was given.
+        if self.expected.is_none() {
+            if let Message::Session(c) = message {
+                if c.id() == header.config_id && c.validate(D).is_ok() {
+                    if let Ok(map) = GlobalMap::new(c) {
+                        self.expected = Some(c);
+                        self.map = Some(map);
+                    }
+                }
+            }
+        }
+        let Some(expected) = self.expected else {
+            self.stats.rejected.wrong_config += 1;
+            return;
+        };
+        let session_ok = match message {
+            Message::Session(c) => c == expected,
+            _ => true,
+        };
+        if header.config_id != expected.id() || !session_ok {
+            self.stats.rejected.wrong_config += 1;
+            return;
+        }
+        // Validate every summary before anything is applied.
+        let summaries: Vec<Summary<D>> = match message {
+            Message::Voxels(batch) => {
+                match batch.iter::<D>(expected.codec).collect::<Result<_, _>>() {
+                    Ok(v) => v,
+                    Err(_) => {
+                        self.stats.rejected.invalid_voxel += 1;
+                        return;
+                    }
+                }
+            }
+            _ => Vec::new(),
+        };
+        let state = self
+            .sessions
+            .entry((header.robot, header.session))
+            .or_default();
+        match state.seq.accept(header.seq) {
+            SeqVerdict::New | SeqVerdict::Late => {}
+            SeqVerdict::Duplicate => {
+                self.stats.rejected.duplicate_frames += 1;
+                return;
+            }
+            SeqVerdict::TooOld => {
+                self.stats.rejected.too_old += 1;
+                return;
+            }
+        }
+        self.stats.frames += 1;
+        match message {
+            Message::Session(_) => state.header_seen = true,
+            Message::Stats(l) => state.link = Some(l),
+            Message::Voxels(_) => {}
+        }
+        if let Some(j) = &mut self.journal {
+            j.push(JournalEntry {
+                robot: header.robot,
+                session: header.session,
+                seq: header.seq,
+                body: body.to_vec(),
+            });
+        }
+        let Some(map) = &mut self.map else { return };
+        for s in &summaries {
+            match map.apply(header.robot, header.session, header.seq, s) {
+                Applied::Merged => self.stats.merged += 1,
+                Applied::Updated => self.stats.updated += 1,
+                Applied::Stale | Applied::DuplicateFinal => self.stats.ignored += 1,
+            }
+        }
+    }
+}
