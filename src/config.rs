@@ -116,6 +116,15 @@ impl MapConfig {
         mode: KernelMode::VoxelOffset,
     };
 
+    /// All-zero placeholder of an unconfigured map (so a `static` map is zero-initialised, in .bss).
+    pub(crate) const UNCONFIGURED: Self = Self {
+        voxel_size: 0.0,
+        kernel_length: 0.0,
+        filter_size: 0,
+        prior: Prior { lambda: 0.0, mean: 0.0, psi: 0.0 },
+        mode: KernelMode::VoxelOffset,
+    };
+
     /// Validate and build a configuration.
     pub fn new(
         voxel_size: f32,

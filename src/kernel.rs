@@ -36,7 +36,8 @@ pub const MAX_NEIGHBOURS: usize =
 #[derive(Clone, Debug)]
 pub struct KernelLut<const CAP: usize = MAX_NEIGHBOURS> {
     offsets: heapless::Vec<Offset, MAX_NEIGHBOURS>,
-    /// Position in `offsets` of each offset of the f³ cube (row-major z, y, x), or `u16::MAX`.
+    /// 1 + position in `offsets` of each offset of the f³ cube (row-major z, y, x), 0 for none (all-zero
+    /// when empty, so a `static` map lands in .bss, not in flash).
     dense: [u16; MAX_NEIGHBOURS],
     reach: i32,
     /// weights[cell * offsets.len() + j]
@@ -50,12 +51,12 @@ impl<const CAP: usize> KernelLut<CAP> {
     /// An empty table (reaches nothing), for `const` initialisation before [`Self::new`].
     pub const EMPTY: Self = Self {
         offsets: heapless::Vec::new(),
-        dense: [u16::MAX; MAX_NEIGHBOURS],
+        dense: [0; MAX_NEIGHBOURS],
         reach: 0,
         weights: heapless::Vec::new(),
-        cells: 1,
-        cell_size: 1.0,
-        inv_voxel_size: 1.0,
+        cells: 0,
+        cell_size: 0.0,
+        inv_voxel_size: 0.0,
     };
 
     /// Compute the table for `config`. Fails only if `CAP` is too small.
@@ -98,10 +99,10 @@ impl<const CAP: usize> KernelLut<CAP> {
             }
         }
         let f = 2 * reach + 1;
-        let mut dense = [u16::MAX; MAX_NEIGHBOURS];
+        let mut dense = [0u16; MAX_NEIGHBOURS];
         for (j, o) in offsets.iter().enumerate() {
             let i = ((i32::from(o[2]) + reach) * f + (i32::from(o[1]) + reach)) * f + (i32::from(o[0]) + reach);
-            dense[i as usize] = j as u16;
+            dense[i as usize] = j as u16 + 1;
         }
         let mut weights = heapless::Vec::new();
         for c in 0..n_cells {
@@ -146,9 +147,9 @@ impl<const CAP: usize> KernelLut<CAP> {
         let f = 2 * r + 1;
         let i = (((dz + r) * f + (dy + r)) * f + (dx + r)) as usize;
         match self.dense.get(i) {
-            Some(&j) if j != u16::MAX => {
+            Some(&j) if j != 0 => {
                 let n = self.offsets.len();
-                self.weights.get(usize::from(cell) * n + usize::from(j)).copied().unwrap_or(0.0)
+                self.weights.get(usize::from(cell) * n + usize::from(j - 1)).copied().unwrap_or(0.0)
             }
             _ => 0.0,
         }

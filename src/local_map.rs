@@ -138,10 +138,11 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     const TABLE: usize = 2 * CAP;
     const CAP_OK: () = assert!(CAP > 0 && CAP < u16::MAX as usize, "CAP must be in 1..65535");
 
-    /// An unconfigured, empty map, for `static` placement; call [`Self::configure`] before use.
+    /// An unconfigured, empty map, for `static` placement; call [`Self::configure`] before use. Every byte
+    /// is zero, so a `static` of it is placed in .bss and costs no flash.
     #[allow(clippy::declare_interior_mutable_const)]
     pub const EMPTY: Self = Self {
-        config: MapConfig::DEFAULT,
+        config: MapConfig::UNCONFIGURED,
         lut: KernelLut::EMPTY,
         prior: VoxelStats::EMPTY,
         prior_code: QuantVoxel::EMPTY,
@@ -155,7 +156,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         centre: VoxelKey::new(0, 0, 0),
         radius: 0,
         epoch: 0,
-        dither: Dither::new(1),
+        dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {
             non_finite_position: 0,

@@ -16,12 +16,19 @@
 use crate::stats::VoxelStats;
 use half::f16;
 
+// Widths chosen by measurement on the real LiDAR tile (host-sim/tests/local_map_accuracy.rs, D = 64,
+// median relative error of the per-dimension predictive variance with the default / a weak prior; argmax
+// agreement ≥ 99.96 % in every case):
+//   μ 8 + Ψ 8 bits: 152 B/voxel, 1.1 % / 0.6 %      μ 6 + Ψ 5 (4 steps/octave): 112 B, 1.9 % / 2.3 %
+//   μ 6 + Ψ 5 (8 steps/octave, 4 octaves): 112 B, 1.6 % / 3.7 % with a 2.8 % trace bias (range clamping)
+//   μ 5 + Ψ 4: 96 B, 1.9 % / 6.5 %                   μ 4 + Ψ 5: 96 B, 1.8 % / 9.3 % (μ noise feeds Ψ)
 /// Bits per μ code (signed).
-pub const MU_BITS: u32 = 8;
+pub const MU_BITS: u32 = 6;
 /// Bits per Ψ code.
-pub const PSI_BITS: u32 = 8;
-/// log2 of the Ψ code steps per octave: 16 steps, a step of 2^(1/16) ≈ 4.4 %.
-pub const PSI_STEPS_LOG2: u32 = 4;
+pub const PSI_BITS: u32 = 5;
+/// log2 of the Ψ code steps per octave: 4 steps (mantissas 1, 1.25, 1.5, 1.75: steps of 14–25 %), so 5
+/// bits span 8 octaves.
+pub const PSI_STEPS_LOG2: u32 = 2;
 
 /// Bytes of packed codes for a D-dimensional voxel.
 pub const fn packed_len(d: usize) -> usize {
@@ -37,6 +44,9 @@ const PSI_SHIFT: u32 = 23 - PSI_STEPS_LOG2;
 pub struct Dither(u32);
 
 impl Dither {
+    /// An unseeded generator (all-zero state: it yields zeros until replaced by [`Dither::new`]).
+    pub const UNSEEDED: Self = Self(0);
+
     /// A generator from a non-zero seed (zero is replaced).
     pub const fn new(seed: u32) -> Self {
         Self(if seed == 0 { 0x9E37_79B9 } else { seed })
@@ -215,8 +225,9 @@ mod tests {
         let step = q.mu_scale.to_f32();
         for i in 0..D {
             assert!((back.mean[i] - s.mean[i]).abs() <= step * 1.0001, "mean {i}");
+            // Stochastic rounding lands on one of the two neighbouring codes: within one step (2^¼).
             let rel = back.psi[i] / s.psi[i];
-            assert!(rel > 0.95 && rel < 1.05, "psi {i}: {rel}");
+            assert!(rel > 0.83 && rel < 1.2, "psi {i}: {rel}");
         }
     }
 
@@ -225,8 +236,8 @@ mod tests {
         // A value a third of a step above a code: round-to-nearest would always lose it.
         let mut d = Dither::new(7);
         let mut s = VoxelStats::<D> { lambda: 1.0, mean: [0.0; D], psi: [1.0; D] };
-        s.mean[0] = 1.0; // sets the scale: step = 1/127
-        s.mean[1] = (10.0 + 1.0 / 3.0) / 127.0;
+        s.mean[0] = 1.0; // sets the scale: step = 1/q_max
+        s.mean[1] = (10.0 + 1.0 / 3.0) / MU_QMAX as f32;
         s.psi[1] = 1.01; // 1 % above a code of Ψ = 1
         let (mut sum_mu, mut sum_psi) = (0.0f64, 0.0f64);
         let n = 20_000;
@@ -248,7 +259,7 @@ mod tests {
         let mut s = VoxelStats::<D> { lambda: 3.0, mean: [0.0; D], psi: [1.0; D] };
         s.psi[0] = 1e6;
         let b = QuantVoxel::<D, P>::encode(&s, &mut d).decode();
-        assert!((b.psi[0] / 1e6 - 1.0).abs() < 0.05);
+        assert!((b.psi[0] / 1e6 - 1.0).abs() < 0.2);
         assert!(b.psi.iter().all(|p| p.is_finite() && *p >= 1.0));
     }
 }

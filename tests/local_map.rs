@@ -171,3 +171,4 @@ fn a_refusing_sink_loses_nothing() {
     assert_eq!(map.flush(&mut sink), Ok(64));
     assert!(map.is_empty());
 }
+
