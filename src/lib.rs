@@ -31,6 +31,7 @@ pub mod key;
 pub mod quant;
 pub mod sink;
 pub mod stats;
+pub mod synth;
 pub mod wire;
 
 pub use batch::{locate, spread, Rejection, RejectionCounts};

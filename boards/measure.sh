@@ -1,0 +1,106 @@
+#!/usr/bin/env bash
+# Firmware measurements on QEMU mps2-an386 (Cortex-M4F), reproducible:
+#   flash and RAM   llvm-size of the firmware ELF, compared with the golden file
+#                   boards/qemu-mps2-an386/expected/firmware.size (BLESS=1 rewrites it)
+#   stack           high-water marks printed by the firmware (cortex-m-rt paint-stack)
+#   instructions    exact executed instructions per input point, f = 1 and f = 3, 4,096-point frames: the
+#                   insncount QEMU plugin (built here with cc) counts between the markers around the map's work
+# Usage: boards/measure.sh            everything, prints a Markdown table
+#        boards/measure.sh --size     only build and compare the size (CI)
+#        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots)
+set -euo pipefail
+cd "$(dirname "$0")/qemu-mps2-an386"
+export CARGO_TARGET_DIR="$PWD/target"
+HOST=$(rustc -vV | sed -n 's/^host: //p')
+LLVM_BIN="$(rustc --print sysroot)/lib/rustlib/$HOST/bin"
+[ -x "$LLVM_BIN/llvm-size" ] || rustup component add llvm-tools
+ELF="$CARGO_TARGET_DIR/thumbv7em-none-eabihf/release/latentbki-qemu-mps2-an386"
+OUT="$CARGO_TARGET_DIR/measure"
+mkdir -p "$OUT"
+
+cargo build --release --quiet
+
+# ---- size: allocated sections only (debug sections and paths never enter the golden file)
+"$LLVM_BIN/llvm-size" -A -d "$ELF" | awk '
+  $1==".vector_table"{vt=$2} $1==".text"{t=$2} $1==".rodata"{ro=$2}
+  $1==".data"{d=$2} $1==".bss"{b=$2} $1==".uninit"{u=$2}
+  END{printf "vector_table=%d text=%d rodata=%d data=%d bss=%d uninit=%d flash=%d ram=%d\n",
+      vt,t,ro,d,b,u,vt+t+ro+d,d+b+u}' > "$OUT/firmware.size"
+if [ "${BLESS:-0}" = 1 ]; then
+  cp "$OUT/firmware.size" expected/firmware.size
+  echo "blessed expected/firmware.size: $(cat expected/firmware.size)"
+elif ! diff -u expected/firmware.size "$OUT/firmware.size"; then
+  echo "firmware size changed (above: - expected, + now). If intended: BLESS=1 boards/measure.sh --size" >&2
+  exit 1
+fi
+echo "size ok: $(cat "$OUT/firmware.size")"
+[ "${1:-}" = --size ] && exit 0
+
+# ---- run under the instruction-counting plugin
+OUT="$OUT/insncount.so" plugin/build.sh
+args=""
+[ "${PROFILE:-0}" = 1 ] && args="profile=on"
+QEMU_PLUGIN="$OUT/insncount.so" QEMU_PLUGIN_ARGS="$args" QEMU_PLUGIN_LOG="$OUT/insn.log" \
+  QEMU_SERIAL="$OUT/uart.bin" ./run-qemu.sh "$ELF" > "$OUT/stdout.txt" || {
+  echo "firmware failed: exit code $? (101 panic, 102 HardFault, 124 timeout)" >&2; exit 1; }
+grep -q '^done$' "$OUT/stdout.txt" || { echo "firmware did not finish" >&2; cat "$OUT/stdout.txt" >&2; exit 1; }
+
+# Pair each frame line with its plugin mark (one per frame, in order).
+paste -d' ' <(grep '^frame ' "$OUT/stdout.txt") <(grep '^mark ' "$OUT/insn.log") > "$OUT/frames.txt"
+python3 - "$OUT" <<'PY'
+import re, sys
+out = sys.argv[1]
+kv = lambda line: dict(re.findall(r'(\w+)=(\d+)', line))
+size = kv(open(f"{out}/firmware.size").read())
+runs = {}
+for line in open(f"{out}/frames.txt"):
+    d = kv(line)
+    insns = int(line.split()[-2])
+    runs.setdefault(int(d["s"]), []).append((int(d["f"]), int(d["points"]), insns))
+stdout = open(f"{out}/stdout.txt").read()
+scen = {int(kv(l)["s"]): kv(l) for l in stdout.splitlines() if l.startswith("scenario ")}
+stack = [kv(l) for l in stdout.splitlines() if l.startswith("stack ")]
+mem = kv(next(l for l in stdout.splitlines() if l.startswith("memory ")))
+KB = lambda b: f"{int(b) / 1024:.1f} KiB"
+print("| measure | value | goal |")
+print("|---|---|---|")
+print(f"| flash (text + rodata + data) | {KB(size['flash'])} ({size['flash']} B; of which .data {KB(size['data'])}) | ≤ 64 KB |")
+print(f"| RAM (data + bss) | {KB(size['ram'])} ({size['ram']} B) | map + stack ≤ 192 KB |")
+print(f"| map | {KB(mem['map_bytes'])}, {scen[0]['capacity']} voxels, {mem['bytes_per_voxel']} B/voxel | 2,048 voxels |")
+print(f"| stack, integrate-and-stream loop | {max(int(s['loop_high_water']) for s in stack)} B | ≤ 8 KB |")
+print(f"| stack, whole run (set-up included) | {max(int(s['setup_high_water']) for s in stack)} B | ≤ 8 KB |")
+for s, frames in sorted(runs.items()):
+    f, pts = frames[0][0], frames[0][1]
+    if pts != 4096:
+        continue
+    total_i = sum(i for _, _, i in frames); total_p = sum(p for _, p, _ in frames)
+    per = [i / p for _, p, i in frames]
+    goal = "≤ 400" if f == 1 else "≤ 2,000"
+    print(f"| instructions/point, f = {f} ({len(frames)} frames × 4,096 points) | {total_i / total_p:.0f} mean, "
+          f"{min(per):.0f}–{max(per):.0f} per frame | {goal} |")
+for s in sorted(scen):
+    d = scen[s]
+    print(f"| scenario {s} (f = {d['f']}) | {d['points']} points, {d['integrated']} integrated, peak {d['peak_voxels']} voxels held, "
+          f"{d['evicted']} evicted, {d['frames_sent']} frames / {d['bytes_sent']} B sent | |")
+PY
+
+if [ "${PROFILE:-0}" = 1 ]; then
+  "$LLVM_BIN/llvm-objdump" -d --no-show-raw-insn "$ELF" > "$OUT/firmware.dis"
+  python3 - "$OUT" <<'PY'
+import bisect, collections, re, sys
+out = sys.argv[1]
+funcs = sorted((int(m.group(1), 16), m.group(2)) for m in
+               (re.match(r'^([0-9a-f]+) <(.*)>:', l) for l in open(f"{out}/firmware.dis")) if m)
+starts = [a for a, _ in funcs]
+agg = collections.Counter()
+for l in open(f"{out}/insn.log"):
+    if l.startswith("pc "):
+        _, pc, n = l.split()
+        name = funcs[bisect.bisect_right(starts, int(pc, 16)) - 1][1]
+        agg[re.sub(r'17h[0-9a-f]{16}E$', '', name)] += int(n)
+tot = sum(agg.values())
+print(f"\nprofile of the marked regions ({tot} instructions):")
+for name, n in agg.most_common(12):
+    print(f"{n:>12} {100 * n / tot:5.1f}%  {name[:100]}")
+PY
+fi

@@ -1,0 +1,153 @@
+//! LatentBKI firmware for QEMU `mps2-an386` (Cortex-M4F with FPU).
+//!
+//! Runs the self-test ([`latentbki::synth::SELF_TEST`]) on the device: a synthetic room seen by a moving
+//! 8×8 ToF and by a 64×64 depth camera, features from the compiled-in codebook plus noise, integrated into a
+//! quantized `LocalMap` in a static, evicted voxels streamed as frames over UART0 by the core's
+//! `FrameEncoder`. The host twin (`host-sim/tests/firmware_qemu.rs`) runs the same core code and compares.
+//!
+//! UART0 carries only frames. Human-readable results go to semihosting stdout (one `frame …` line per
+//! frame, one `scenario …` line per scenario, then `stack …` and `done`); the exit code says how it went.
+#![no_std]
+#![no_main]
+
+mod board;
+
+use board::{exit, exit_code, Markers, Uart};
+use core::mem::MaybeUninit;
+use latentbki::frame::FrameEncoder;
+use latentbki::local_map::LocalMap;
+use latentbki::quant::packed_len;
+use latentbki::synth::{
+    self, Chunk, FrameReport, RunError, Scenario, SELF_TEST, SELF_TEST_CAPACITY,
+    SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,
+};
+use static_cell::ConstStaticCell;
+
+#[cfg(feature = "defmt")]
+use defmt_semihosting as _;
+
+/// Feature dimension (PCA-compressed).
+const D: usize = 64;
+const P: usize = packed_len(D);
+/// Points generated per chunk (4.3 KiB of scratch).
+const K: usize = 16;
+
+type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
+type Encoder = FrameEncoder<D, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
+
+/// The map lives in a static (≈ 150 KiB); never on the stack.
+static MAP: ConstStaticCell<Map> = ConstStaticCell::new(Map::EMPTY);
+static CHUNK: ConstStaticCell<Chunk<D, K>> = ConstStaticCell::new(Chunk::ZERO);
+
+/// The encoder (≈ 5 KiB of queue and frame buffers) also lives in a static, rebuilt for each scenario.
+static ENCODER: ConstStaticCell<MaybeUninit<Encoder>> = ConstStaticCell::new(MaybeUninit::uninit());
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    let map = MAP.take();
+    let chunk = CHUNK.take();
+    let encoder = ENCODER.take();
+    let mut uart = Uart::uart0();
+    for (s, scenario) in SELF_TEST.iter().enumerate() {
+        if let Err(code) = run_scenario(s, scenario, map, chunk, encoder, &mut uart) {
+            exit(code)
+        }
+    }
+    semihosting::println!(
+        "memory stack_size={} map_bytes={} bytes_per_voxel={}",
+        board::stack::size(),
+        core::mem::size_of::<Map>(),
+        Map::BYTES_PER_VOXEL
+    );
+    semihosting::println!("done");
+    exit(exit_code::SUCCESS)
+}
+
+/// One scenario of the self-test: a fresh encoder (written in place into its static), the run, a report.
+#[inline(never)]
+fn run_scenario(
+    s: usize,
+    scenario: &Scenario,
+    map: &mut Map,
+    chunk: &mut Chunk<D, K>,
+    encoder: &mut MaybeUninit<Encoder>,
+    uart: &mut Uart,
+) -> Result<(), i32> {
+    configure(scenario, map)?;
+    let encoder = new_encoder(scenario, encoder)?;
+    let setup_stack = board::stack::high_water();
+    // From here on: the integrate-and-stream loop. Its own stack high-water mark is measured from a fresh
+    // paint (the one-time set-up above builds kilobyte-sized values on the stack; see README "Firmware").
+    board::stack::repaint();
+    let on_frame = |i: u32, f: &FrameReport, m: &Map| {
+        Markers.report();
+        semihosting::println!(
+            "frame s={} i={} f={} points={} integrated={} voxels={}",
+            s,
+            i,
+            scenario.filter_size,
+            f.points,
+            f.integrated,
+            m.len()
+        );
+    };
+    let r = match synth::run(scenario, map, encoder, chunk, uart, &mut Markers, on_frame) {
+        Ok(r) => r,
+        Err(RunError::Config(_) | RunError::NotConfigured | RunError::Stuck) => {
+            return Err(exit_code::FAILED)
+        }
+        Err(RunError::Write(never)) => match never {},
+    };
+    let loop_stack = board::stack::high_water_since_repaint();
+    #[cfg(feature = "defmt")]
+    defmt::info!(
+        "scenario {}: {} points, {} frames sent",
+        s,
+        r.points,
+        r.link.frames_sent
+    );
+    semihosting::println!(
+        "scenario s={} f={} frames={} points={} integrated={} peak_voxels={} capacity={} evicted={} refused={} flushed={} no_room={} outside_window={} frames_sent={} bytes_sent={} evicted_sent={} invalid={}",
+        s,
+        scenario.filter_size,
+        scenario.frames,
+        r.points,
+        r.integrated,
+        r.peak_voxels,
+        map.capacity(),
+        r.counters.evicted,
+        r.counters.refused,
+        r.flushed,
+        r.rejections.no_room,
+        r.rejections.outside_window,
+        r.link.frames_sent,
+        r.link.bytes_sent,
+        r.link.evicted_sent,
+        r.link.invalid
+    );
+    semihosting::println!(
+        "stack s={} setup_high_water={} loop_high_water={}",
+        s,
+        setup_stack,
+        loop_stack
+    );
+    Ok(())
+}
+
+/// Configure the map (its kernel table is built on the stack: kept out of the loop's frame).
+#[inline(never)]
+fn configure(scenario: &Scenario, map: &mut Map) -> Result<(), i32> {
+    scenario.configure(map).map_err(|_| exit_code::FAILED)
+}
+
+/// A fresh encoder in its static (built on the stack, then moved: kept out of the loop's frame).
+#[inline(never)]
+fn new_encoder<'a>(
+    scenario: &Scenario,
+    slot: &'a mut MaybeUninit<Encoder>,
+) -> Result<&'a mut Encoder, i32> {
+    let session = scenario.session_config(D).map_err(|_| exit_code::FAILED)?;
+    let encoder =
+        Encoder::new(session, scenario.encoder_settings()).map_err(|_| exit_code::FAILED)?;
+    Ok(slot.write(encoder))
+}

@@ -1,0 +1,288 @@
+//! End to end on an emulated Cortex-M4F: the firmware in `boards/qemu-mps2-an386` runs the self-test
+//! (`latentbki::synth::SELF_TEST`) in QEMU with UART0 captured to a file; the host twin runs the same core
+//! code (`synth::run` with the same scenarios, map capacity, encoder sizes and seeds) and must produce the
+//! same bytes. Both streams are decoded (COBS + CRC frames, wire summaries) into global maps that must be
+//! equal, non-trivial and semantically right (voxels decode to the category of the surface they lie on).
+//!
+//! The firmware ELF is `$LATENTBKI_FIRMWARE_ELF` if set, else it is built (`cargo build --release` in the
+//! board directory). Without `qemu-system-arm` the test is skipped with a message — except in CI
+//! (`CI=true`), where it must run.
+
+use latentbki::frame::{FrameDecoder, FrameEncoder};
+use latentbki::key::{to_map_frame, VoxelKey};
+use latentbki::local_map::LocalMap;
+use latentbki::quant::packed_len;
+use latentbki::stats::VoxelStats;
+use latentbki::synth::{
+    self, CategoryVectors, Chunk, Scenario, CATEGORIES, SELF_TEST, SELF_TEST_CAPACITY,
+    SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,
+};
+use latentbki::wire::{parse_body, Message, SessionConfig};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const D: usize = 64;
+const P: usize = packed_len(D);
+type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
+type Encoder = FrameEncoder<D, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
+
+fn board_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../boards/qemu-mps2-an386")
+}
+
+fn have_qemu() -> bool {
+    Command::new("qemu-system-arm")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+fn firmware_elf() -> PathBuf {
+    if let Some(p) = std::env::var_os("LATENTBKI_FIRMWARE_ELF") {
+        return PathBuf::from(p);
+    }
+    let dir = board_dir();
+    let status = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--quiet"])
+        .current_dir(&dir)
+        .env("CARGO_TARGET_DIR", dir.join("target"))
+        .status()
+        .expect("run cargo build for the firmware");
+    assert!(status.success(), "firmware build failed");
+    dir.join("target/thumbv7em-none-eabihf/release/latentbki-qemu-mps2-an386")
+}
+
+/// Run the firmware in QEMU: (UART0 bytes, semihosting stdout).
+fn run_firmware(elf: &Path) -> (Vec<u8>, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let uart = dir.path().join("uart.bin");
+    let out = Command::new(board_dir().join("run-qemu.sh"))
+        .arg(elf)
+        .env("QEMU_SERIAL", &uart)
+        .env_remove("QEMU_PLUGIN")
+        .output()
+        .expect("run qemu");
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "firmware exited with {:?}\nstdout:\n{stdout}\nstderr:\n{}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.lines().any(|l| l == "done"),
+        "no `done` line:\n{stdout}"
+    );
+    (std::fs::read(&uart).unwrap(), stdout)
+}
+
+/// What the host twin computes: the same scenarios through the same core code, plus the ground truth
+/// (per voxel, how many points of each category fell in it).
+struct Twin {
+    bytes: Vec<u8>,
+    reports: Vec<synth::RunReport>,
+    truth: Vec<BTreeMap<VoxelKey, [u32; CATEGORIES]>>,
+}
+
+fn twin() -> Twin {
+    let mut map: Box<Map> = Box::new(Map::EMPTY);
+    let mut chunk = Box::new(Chunk::<D, 16>::ZERO);
+    let mut buf = vec![0u8; 8 << 20];
+    let capacity = buf.len();
+    let mut out: &mut [u8] = &mut buf[..];
+    let mut reports = Vec::new();
+    let mut truth = Vec::new();
+    for scenario in &SELF_TEST {
+        scenario.configure(&mut map).unwrap();
+        let mut encoder = Box::new(
+            Encoder::new(
+                scenario.session_config(D).unwrap(),
+                scenario.encoder_settings(),
+            )
+            .unwrap(),
+        );
+        let r = synth::run(
+            scenario,
+            &mut map,
+            &mut encoder,
+            &mut chunk,
+            &mut out,
+            &mut (),
+            |_, _, _| {},
+        )
+        .unwrap_or_else(|e| panic!("twin run: {e:?}"));
+        reports.push(r);
+        truth.push(ground_truth(scenario));
+    }
+    let written = capacity - out.len();
+    buf.truncate(written);
+    Twin {
+        bytes: buf,
+        reports,
+        truth,
+    }
+}
+
+fn ground_truth(scenario: &Scenario) -> BTreeMap<VoxelKey, [u32; CATEGORIES]> {
+    let inv = 1.0 / scenario.map_config().unwrap().voxel_size();
+    let mut truth = BTreeMap::new();
+    let mut f = [0.0f32; D];
+    for frame in 0..scenario.frames {
+        let view = scenario.scene.view(frame);
+        let pose = view.pose();
+        for zone in 0..scenario.scene.sensor.zones() {
+            if let Some(o) = scenario.scene.observe(&view, frame, zone, &mut f) {
+                let key = VoxelKey::from_position(to_map_frame(&pose, o.point), inv).unwrap();
+                truth.entry(key).or_insert([0; CATEGORIES])[usize::from(o.category)] += 1;
+            }
+        }
+    }
+    truth
+}
+
+/// A global map per session configuration, from a byte stream: every final summary of every session
+/// merged (residencies are disjoint observations). Returns (maps by configuration id, frames, finals).
+type Global = BTreeMap<u32, (SessionConfig, BTreeMap<VoxelKey, VoxelStats<D>>)>;
+
+fn decode(bytes: &[u8]) -> (Global, u32, u32) {
+    let mut decoder = Box::new(FrameDecoder::<4096>::new());
+    let mut configs: BTreeMap<u32, SessionConfig> = BTreeMap::new();
+    let mut maps: Global = BTreeMap::new();
+    let (mut frames, mut finals) = (0, 0);
+    let mut rest = bytes;
+    loop {
+        match decoder.feed(rest) {
+            latentbki::frame::Feed::NeedMore => break,
+            latentbki::frame::Feed::Error { error, .. } => panic!("frame error {error:?}"),
+            latentbki::frame::Feed::Frame { body, rest: r } => {
+                rest = r;
+                frames += 1;
+                let (header, message) = parse_body(body).expect("parse");
+                match message {
+                    Message::Session(c) => {
+                        assert_eq!(c.id(), header.config_id);
+                        configs.insert(c.id(), c);
+                    }
+                    Message::Stats(_) => {}
+                    Message::Voxels(batch) => {
+                        let config = configs[&header.config_id];
+                        let prior =
+                            VoxelStats::<D>::from_prior(&config.map_config().unwrap().prior());
+                        let (_, map) = maps
+                            .entry(header.config_id)
+                            .or_insert((config, BTreeMap::new()));
+                        for s in batch.iter::<D>(config.codec) {
+                            let s = s.expect("summary");
+                            assert!(s.is_final, "the self-test streams evicted voxels only");
+                            finals += 1;
+                            map.entry(s.key)
+                                .and_modify(|v| v.merge(&s.stats, &prior))
+                                .or_insert(s.stats);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(decoder.stats().refused(), 0);
+    (maps, frames, finals)
+}
+
+#[test]
+fn firmware_in_qemu_streams_the_map_the_host_twin_computes() {
+    if !have_qemu() {
+        let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
+        assert!(
+            !ci,
+            "CI=true but qemu-system-arm is missing: .ci/run must install it"
+        );
+        eprintln!(
+            "SKIPPED firmware_in_qemu_streams_the_map_the_host_twin_computes: qemu-system-arm not found \
+             (apt-get install qemu-system-arm); set CI=true to make this a failure"
+        );
+        return;
+    }
+    let elf = firmware_elf();
+    let (uart, stdout) = run_firmware(&elf);
+    let twin = twin();
+
+    // The firmware's own report agrees with the twin's, scenario by scenario.
+    for (s, r) in twin.reports.iter().enumerate() {
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("scenario s={s} ")))
+            .unwrap_or_else(|| panic!("no report for scenario {s}:\n{stdout}"));
+        let expect = format!(
+            "points={} integrated={} peak_voxels={}",
+            r.points, r.integrated, r.peak_voxels
+        );
+        assert!(
+            line.contains(&expect),
+            "scenario {s}: firmware says `{line}`, twin `{expect}`"
+        );
+        assert!(
+            line.contains(&format!(
+                "frames_sent={} bytes_sent={}",
+                r.link.frames_sent, r.link.bytes_sent
+            )),
+            "scenario {s}: `{line}` vs twin {:?}",
+            r.link
+        );
+    }
+
+    // Byte for byte the same stream.
+    assert_eq!(uart.len(), twin.bytes.len(), "UART stream length");
+    if let Some(i) = uart.iter().zip(&twin.bytes).position(|(a, b)| a != b) {
+        panic!(
+            "UART stream differs from the twin's at byte {i} of {}",
+            uart.len()
+        );
+    }
+
+    // The same global maps, decoded.
+    let (fw_maps, frames, finals) = decode(&uart);
+    let (twin_maps, _, _) = decode(&twin.bytes);
+    assert_eq!(fw_maps.len(), 2, "two configurations (f = 1 and f = 3)");
+    for (id, (config, fw)) in &fw_maps {
+        let (_, tw) = &twin_maps[id];
+        assert_eq!(fw.len(), tw.len());
+        for (k, v) in fw {
+            assert_eq!(Some(v), tw.get(k), "voxel {k:?} (config {id:#x})");
+        }
+        assert!(
+            fw.len() > 300,
+            "config f={}: only {} voxels",
+            config.filter_size,
+            fw.len()
+        );
+    }
+    let sent: u32 = twin.reports.iter().map(|r| r.link.evicted_sent).sum();
+    assert_eq!(finals, sent);
+    assert!(frames > 100);
+
+    // Semantics: at f = 1 (no spreading) a voxel's mean decodes to the category most of its points had.
+    let s = 1;
+    let id = SELF_TEST[s].session_config(D).unwrap().id();
+    let (_, global) = &fw_maps[&id];
+    let (mut right, mut total) = (0, 0);
+    for (key, counts) in &twin.truth[s] {
+        let n: u32 = counts.iter().sum();
+        let majority = (0..CATEGORIES).max_by_key(|&c| counts[c]).unwrap();
+        if n < 20 || counts[majority] * 10 < n * 9 {
+            continue; // sparse or mixed voxels
+        }
+        let v = global
+            .get(key)
+            .expect("an observed voxel reached the base station");
+        total += 1;
+        if CategoryVectors::<D>::classify(&v.mean) == Some(majority as u8) {
+            right += 1;
+        }
+    }
+    assert!(total > 100, "{total} clear voxels");
+    assert!(
+        right * 100 >= total * 95,
+        "{right} of {total} voxels decode to their category"
+    );
+}

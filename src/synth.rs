@@ -1,0 +1,867 @@
+//! A deterministic synthetic room and depth sensor, for firmware self-tests and their host twin.
+//!
+//! Firmware has no camera in CI, yet it must run the real loop — sense, integrate, stream — and the host
+//! must be able to recompute, bit for bit, what the device did. So the scene is generated *on the device*
+//! by code both sides share: a furnished room (floor, walls, ceiling, a table, a cabinet, a chair), a
+//! depth sensor on a circular trajectory (an 8×8 multizone ToF like the VL53L5CX, or a 64×64 subsampled
+//! depth camera for 4,096-point frames), and per-point features drawn from a compiled-in codebook (one
+//! random unit vector per category) plus noise.
+//!
+//! Why it is shaped so:
+//! - **Random access, no state**: every number is a hash of (seed, frame, zone, component), so points can
+//!   be generated in chunks of any size (a few kilobytes of RAM on the device) and the host twin needs no
+//!   replay; nothing depends on call order.
+//! - **f32 only, explicit libm**: the same inputs give the same bits on a Cortex-M4F and on a desktop.
+//!   Only IEEE-exact operations (+ − × ÷ √, floor) are used (sin and cos by a short f32 polynomial), and a
+//!   point's sensor-frame coordinates are `range × ray`, so no rotation round-off enters the input.
+//! - **Same loop on both sides**: [`integrate_frame`] is the firmware's integrate path and the twin's; a
+//!   [`Probe`] brackets the map's work so the firmware can count instructions around exactly that.
+
+use crate::batch::RejectionCounts;
+use crate::config::{ConfigError, KernelMode, MapConfig, Prior};
+use crate::frame::{EncoderSettings, FrameEncoder, TickError};
+use crate::key::to_map_frame;
+use crate::local_map::{Counters, LocalMap};
+use crate::sink::{Evicted, EvictionSink};
+use crate::wire::{LinkStats, SessionConfig, SummaryCodec};
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
+
+/// Number of categories in the room (and vectors in the codebook).
+pub const CATEGORIES: usize = 6;
+
+/// Category names, by index.
+pub const CATEGORY_NAMES: [&str; CATEGORIES] =
+    ["floor", "wall", "ceiling", "table", "cabinet", "chair"];
+
+const FLOOR: u8 = 0;
+const WALL: u8 = 1;
+const CEILING: u8 = 2;
+
+/// Seed of the compiled-in codebook.
+pub const CODEBOOK_SEED: u32 = 0xC0DE_B00C;
+
+/// One 32-bit hash step (murmur3's finaliser over a multiply-add mix): well mixed, cheap, deterministic.
+#[inline]
+pub const fn hash(a: u32, b: u32) -> u32 {
+    let mut h = a.wrapping_mul(0x9E37_79B1) ^ b.wrapping_mul(0x85EB_CA77).rotate_left(13);
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x85EB_CA6B);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0xC2B2_AE35);
+    h ^ (h >> 16)
+}
+
+/// An approximately standard normal number from one hash: the sum of its four bytes (Irwin–Hall, n = 4),
+/// centred and scaled to unit variance.
+#[inline]
+pub fn normal(h: u32) -> f32 {
+    let s = (h & 0xFF) + (h >> 8 & 0xFF) + (h >> 16 & 0xFF) + (h >> 24);
+    // Mean 4 · 127.5 = 510; variance 4 · (256² − 1) / 12 = 21,845, σ = 147.80.
+    (s as f32 - 510.0) * (1.0 / 147.800_54)
+}
+
+/// sin and cos of `x` (|x| ≤ 8π) in f32 arithmetic only (libm's `sinf`/`cosf` evaluate in f64, which a
+/// Cortex-M4F emulates in software): reduction to [−π/4, π/4] and Taylor polynomials, error < 1e-6.
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    use core::f32::consts::FRAC_PI_2;
+    let q = libm::floorf(x * (1.0 / FRAC_PI_2) + 0.5);
+    let r = x - q * FRAC_PI_2;
+    let r2 = r * r;
+    let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0))));
+    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0))));
+    match (q as i32) & 3 {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
+}
+
+/// 1/√D by Newton's method, usable in `const` context.
+const fn inv_sqrt(d: usize) -> f32 {
+    let x = d as f32;
+    let mut y = 1.0 / x;
+    let mut i = 0;
+    while i < 40 {
+        y = y * (1.5 - 0.5 * x * y * y);
+        i += 1;
+    }
+    y
+}
+
+/// The codebook: one vector per category, components ±1/√D with hashed signs (unit length; two
+/// categories have cosine ≈ N(0, 1/D), so they are well apart at D = 64).
+pub const fn codebook<const D: usize>(seed: u32) -> [[f32; D]; CATEGORIES] {
+    let v = inv_sqrt(D);
+    let mut out = [[0.0f32; D]; CATEGORIES];
+    let mut c = 0;
+    while c < CATEGORIES {
+        let mut i = 0;
+        while i < D {
+            let h = hash(hash(seed, c as u32), i as u32);
+            out[c][i] = if h & 1 == 0 { v } else { -v };
+            i += 1;
+        }
+        c += 1;
+    }
+    out
+}
+
+/// The compiled-in codebook at dimension `D` (a `'static` table in flash).
+pub struct CategoryVectors<const D: usize>;
+
+impl<const D: usize> CategoryVectors<D> {
+    /// The vectors, by category.
+    pub const VECTORS: [[f32; D]; CATEGORIES] = codebook::<D>(CODEBOOK_SEED);
+
+    /// The category whose vector has the largest cosine with `feature` (`None` for a zero vector).
+    pub fn classify(feature: &[f32; D]) -> Option<u8> {
+        let norm2: f32 = feature.iter().map(|v| v * v).sum();
+        if !(norm2 > 0.0) {
+            return None;
+        }
+        let mut best = (0u8, f32::NEG_INFINITY);
+        for (c, v) in Self::VECTORS.iter().enumerate() {
+            let dot: f32 = v.iter().zip(feature).map(|(a, b)| a * b).sum();
+            if dot > best.1 {
+                best = (c as u8, dot);
+            }
+        }
+        Some(best.0)
+    }
+}
+
+/// A solid axis-aligned box of one category.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Block {
+    /// Lowest corner (m).
+    pub lo: [f32; 3],
+    /// Highest corner (m).
+    pub hi: [f32; 3],
+    /// Its category.
+    pub category: u8,
+}
+
+/// A closed box-shaped room `[0, size]` with solid furniture inside.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Room {
+    /// Interior extent (m): x, y, z (z up; the floor is z = 0).
+    pub size: [f32; 3],
+    /// Furniture.
+    pub blocks: [Block; 3],
+}
+
+impl Room {
+    /// A 4 m × 3 m room, 2.5 m high, with a table, a cabinet and a chair.
+    pub const DEFAULT: Self = Self {
+        size: [4.0, 3.0, 2.5],
+        blocks: [
+            Block {
+                lo: [0.9, 0.4, 0.0],
+                hi: [1.9, 1.2, 0.75],
+                category: 3,
+            },
+            Block {
+                lo: [3.4, 0.2, 0.0],
+                hi: [3.95, 1.3, 1.8],
+                category: 4,
+            },
+            Block {
+                lo: [2.2, 2.5, 0.0],
+                hi: [2.7, 2.95, 0.45],
+                category: 5,
+            },
+        ],
+    };
+
+    /// First surface hit by the ray `origin + t·dir` (origin inside the room, not inside furniture):
+    /// distance t and category.
+    pub fn cast(&self, origin: [f32; 3], dir: [f32; 3]) -> (f32, u8) {
+        // Leaving the room: the nearest wall ahead on each axis.
+        let mut best = (f32::INFINITY, WALL);
+        for axis in 0..3 {
+            let d = dir[axis];
+            let (t, cat) = if d > 0.0 {
+                (
+                    (self.size[axis] - origin[axis]) / d,
+                    if axis == 2 { CEILING } else { WALL },
+                )
+            } else if d < 0.0 {
+                (-origin[axis] / d, if axis == 2 { FLOOR } else { WALL })
+            } else {
+                continue;
+            };
+            if t < best.0 {
+                best = (t, cat);
+            }
+        }
+        // Entering a block: the slab method.
+        for b in &self.blocks {
+            let (mut near, mut far) = (0.0f32, f32::INFINITY);
+            for axis in 0..3 {
+                let d = dir[axis];
+                if d == 0.0 {
+                    if origin[axis] < b.lo[axis] || origin[axis] > b.hi[axis] {
+                        far = -1.0;
+                    }
+                    continue;
+                }
+                let t0 = (b.lo[axis] - origin[axis]) / d;
+                let t1 = (b.hi[axis] - origin[axis]) / d;
+                let (t0, t1) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
+                near = near.max(t0);
+                far = far.min(t1);
+            }
+            if near <= far && near > 0.0 && near < best.0 {
+                best = (near, b.category);
+            }
+        }
+        best
+    }
+}
+
+/// A depth sensor: `width × height` zones over a rectangular field of view, each returning a range along
+/// its zone's centre ray. Sensor frame: x right, y down, z forward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthSensor {
+    /// Zones per row.
+    pub width: u16,
+    /// Rows.
+    pub height: u16,
+    /// tan(horizontal field of view / 2).
+    pub tan_half_x: f32,
+    /// tan(vertical field of view / 2).
+    pub tan_half_y: f32,
+    /// Farthest range returned (m); beyond it a zone reports nothing.
+    pub max_range: f32,
+    /// Standard deviation of the range noise (m).
+    pub range_noise: f32,
+}
+
+impl DepthSensor {
+    /// An 8×8 multizone time-of-flight sensor like the VL53L5CX: 45° × 45°, 4 m, ±1 cm.
+    pub const TOF_8X8: Self = Self {
+        width: 8,
+        height: 8,
+        tan_half_x: 0.414_213_57,
+        tan_half_y: 0.414_213_57,
+        max_range: 4.0,
+        range_noise: 0.01,
+    };
+
+    /// A depth camera subsampled to 64×64 (4,096 points a frame) over the central 30° × 30° of its view,
+    /// 6 m, ±5 mm.
+    pub const DEPTH_64X64: Self = Self {
+        width: 64,
+        height: 64,
+        tan_half_x: 0.267_949_2,
+        tan_half_y: 0.267_949_2,
+        max_range: 6.0,
+        range_noise: 0.005,
+    };
+
+    /// Zones per frame.
+    pub const fn zones(&self) -> u32 {
+        self.width as u32 * self.height as u32
+    }
+
+    /// Unit direction of a zone's centre ray in the sensor frame (zones row by row).
+    pub fn ray(&self, zone: u32) -> [f32; 3] {
+        let (w, h) = (u32::from(self.width.max(1)), u32::from(self.height.max(1)));
+        let (col, row) = (zone % w, (zone / w) % h);
+        let x = ((col as f32 + 0.5) / w as f32 * 2.0 - 1.0) * self.tan_half_x;
+        let y = ((row as f32 + 0.5) / h as f32 * 2.0 - 1.0) * self.tan_half_y;
+        let inv = 1.0 / libm::sqrtf(x * x + y * y + 1.0);
+        [x * inv, y * inv, inv]
+    }
+}
+
+/// Where the sensor is for one frame: its origin and its axes (right, down, forward) in the map frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct View {
+    /// Sensor origin in the map frame (m).
+    pub origin: [f32; 3],
+    /// Columns of the sensor → map rotation: the sensor's x (right), y (down), z (forward) axes.
+    pub axes: [[f32; 3]; 3],
+}
+
+impl View {
+    /// A map-frame direction from a sensor-frame one.
+    pub fn to_map(&self, d: [f32; 3]) -> [f32; 3] {
+        let a = &self.axes;
+        core::array::from_fn(|i| a[0][i] * d[0] + a[1][i] * d[1] + a[2][i] * d[2])
+    }
+
+    /// The pose (sensor → map) the map integrates this frame with.
+    pub fn pose(&self) -> Isometry3<f32> {
+        let a = &self.axes;
+        #[rustfmt::skip]
+        let m = Matrix3::new(
+            a[0][0], a[1][0], a[2][0],
+            a[0][1], a[1][1], a[2][1],
+            a[0][2], a[1][2], a[2][2],
+        );
+        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m));
+        Isometry3::from_parts(
+            Translation3::new(self.origin[0], self.origin[1], self.origin[2]),
+            rotation,
+        )
+    }
+}
+
+/// One sensor return.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// The point in the sensor frame (m).
+    pub point: [f32; 3],
+    /// The category of the surface it hit (ground truth).
+    pub category: u8,
+}
+
+/// The room, the sensor on its trajectory, and the noise: everything a run generates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scene {
+    /// The room.
+    pub room: Room,
+    /// The sensor.
+    pub sensor: DepthSensor,
+    /// Seed of every noise draw.
+    pub seed: u32,
+    /// Standard deviation of the feature noise, per component.
+    pub feature_noise: f32,
+    /// Frames per turn of the trajectory.
+    pub frames_per_turn: u32,
+}
+
+impl Scene {
+    /// The default room seen by `sensor`, 48 frames a turn, feature noise 0.1 per component.
+    pub const fn new(sensor: DepthSensor, seed: u32) -> Self {
+        Self {
+            room: Room::DEFAULT,
+            sensor,
+            seed,
+            feature_noise: 0.1,
+            frames_per_turn: 48,
+        }
+    }
+
+    /// The sensor's view at a frame: it circles the room's free middle at 1.2 m height (radius 0.5 m),
+    /// looking outwards and sweeping its pitch between −0.55 and 0.35 rad.
+    pub fn view(&self, frame: u32) -> View {
+        let turn =
+            (frame % self.frames_per_turn.max(1)) as f32 / self.frames_per_turn.max(1) as f32;
+        let phase = 2.0 * core::f32::consts::PI * turn;
+        let (s, c) = sin_cos(phase);
+        let origin = [2.6 + 0.5 * c, 1.6 + 0.5 * s, 1.2];
+        let pitch = -0.1 + 0.45 * sin_cos(3.0 * phase).0;
+        let (sp, cp) = sin_cos(pitch);
+        // Look outwards, 30° ahead of the radius so the view sweeps along the walls.
+        let yaw = phase + 0.5;
+        let (sy, cy) = sin_cos(yaw);
+        let forward = [cy * cp, sy * cp, sp];
+        let right = [sy, -cy, 0.0];
+        // down = forward × right
+        let down = [
+            forward[1] * right[2] - forward[2] * right[1],
+            forward[2] * right[0] - forward[0] * right[2],
+            forward[0] * right[1] - forward[1] * right[0],
+        ];
+        View {
+            origin,
+            axes: [right, down, forward],
+        }
+    }
+
+    /// What zone `zone` of frame `frame` returns, seen from `view` (= `self.view(frame)`): the point and
+    /// its category, and the feature written to `feature`. `None` if the surface is out of range.
+    pub fn observe<const D: usize>(
+        &self,
+        view: &View,
+        frame: u32,
+        zone: u32,
+        feature: &mut [f32; D],
+    ) -> Option<Observation> {
+        let ray = self.sensor.ray(zone);
+        let (t, category) = self.room.cast(view.origin, view.to_map(ray));
+        let h = hash(hash(self.seed, frame), zone);
+        let range = t + self.sensor.range_noise * normal(h);
+        if !(range > 0.0 && range <= self.sensor.max_range) {
+            return None;
+        }
+        let code = &CategoryVectors::<D>::VECTORS[usize::from(category) % CATEGORIES];
+        for (i, (f, c)) in feature.iter_mut().zip(code).enumerate() {
+            *f = c + self.feature_noise * normal(hash(h, i as u32));
+        }
+        Some(Observation {
+            point: [ray[0] * range, ray[1] * range, ray[2] * range],
+            category,
+        })
+    }
+}
+
+/// Brackets the map's work inside [`integrate_frame`] (the firmware counts instructions between the two
+/// calls; the host does nothing).
+pub trait Probe {
+    /// The map's work begins.
+    fn start(&mut self) {}
+    /// The map's work ends.
+    fn stop(&mut self) {}
+}
+
+/// A probe that does nothing.
+impl Probe for () {}
+
+/// Generation scratch for `K` points at a time (sensor-frame points and their features).
+pub struct Chunk<const D: usize, const K: usize> {
+    /// Map-frame points.
+    pub points: [[f32; 3]; K],
+    /// Their features.
+    pub features: [[f32; D]; K],
+}
+
+impl<const D: usize, const K: usize> Chunk<D, K> {
+    /// All zero (a `static` initialiser that lands in `.bss`).
+    pub const ZERO: Self = Self {
+        points: [[0.0; 3]; K],
+        features: [[0.0; D]; K],
+    };
+}
+
+/// What [`integrate_frame`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameReport {
+    /// Sensor returns generated (zones in range).
+    pub points: u32,
+    /// Points the map integrated (its `counters().points` went up by this much).
+    pub integrated: u32,
+}
+
+/// Generate frame `frame` of `scene` in chunks of `K` points and integrate it into `map` as one batch,
+/// exactly as [`LocalMap::integrate`] would (window move, every point, end of batch). The map's work —
+/// and only it — runs between `probe.start()` and `probe.stop()` (once for the window move, once per
+/// chunk, once for the end of the batch).
+pub fn integrate_frame<const D: usize, const CAP: usize, const P: usize, const K: usize, S, M>(
+    scene: &Scene,
+    frame: u32,
+    map: &mut LocalMap<D, CAP, P>,
+    chunk: &mut Chunk<D, K>,
+    sink: &mut S,
+    probe: &mut M,
+) -> FrameReport
+where
+    S: EvictionSink<D>,
+    M: Probe,
+{
+    let view = scene.view(frame);
+    let pose = view.pose();
+    let mut report = FrameReport::default();
+    let before = map.counters().points;
+    probe.start();
+    map.move_window(view.origin, sink);
+    probe.stop();
+    let zones = scene.sensor.zones();
+    let mut zone = 0;
+    while zone < zones {
+        let mut n = 0;
+        while n < K && zone < zones {
+            if let Some(o) = scene.observe(&view, frame, zone, &mut chunk.features[n]) {
+                chunk.points[n] = o.point;
+                n += 1;
+            }
+            zone += 1;
+        }
+        report.points += n as u32;
+        probe.start();
+        for (p, y) in chunk.points[..n].iter().zip(&chunk.features[..n]) {
+            // Refusals are counted by the map (`rejections`).
+            let _ = map.add_point(to_map_frame(&pose, *p), y, sink);
+        }
+        probe.stop();
+    }
+    probe.start();
+    map.end_batch(sink);
+    probe.stop();
+    // Points a full pool refused at the end of the batch are taken back out of the map's count.
+    report.integrated = map.counters().points.wrapping_sub(before);
+    report
+}
+
+/// One self-test run: a scene, how many frames, the map and the link.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scenario {
+    /// What the sensor sees.
+    pub scene: Scene,
+    /// Frames integrated.
+    pub frames: u32,
+    /// Filter size f of the map (0.1 m voxels, ℓ = 0.5 m, default prior, voxel-offset kernel).
+    pub filter_size: u8,
+    /// Window radius around the sensor (m).
+    pub window_radius: f32,
+    /// Session id on the wire (robot [`SELF_TEST_ROBOT`]).
+    pub session: u32,
+    /// Link bytes per frame (e.g. 2,048 B: 460,800 Bd at 20 frames/s).
+    pub tick_budget: usize,
+}
+
+/// Robot id the self-test streams as.
+pub const SELF_TEST_ROBOT: u16 = 6;
+/// RAM the self-test gives the map's voxels (slots and index): 192 KiB less 16 KiB of stack and 32 KiB
+/// for the rest (the map's batch scratch and kernel table, the encoder, the point chunk).
+pub const SELF_TEST_MAP_BUDGET: usize = 144 * 1024;
+/// Voxels the self-test map holds at D = 64: what [`SELF_TEST_MAP_BUDGET`] buys at the current bytes per
+/// voxel.
+pub const SELF_TEST_CAPACITY: usize =
+    SELF_TEST_MAP_BUDGET / LocalMap::<64, 1, { crate::quant::packed_len(64) }>::BYTES_PER_VOXEL;
+/// Bytes of the encoder's queue of evicted voxels.
+pub const SELF_TEST_QUEUE_BYTES: usize = 4096;
+/// Largest frame on the wire.
+pub const SELF_TEST_FRAME_BYTES: usize = 512;
+
+/// The firmware self-test: the 8×8 ToF for three turns (f = 1), then 4,096-point depth frames at f = 1
+/// and f = 3 (the instruction-count benchmark).
+pub const SELF_TEST: [Scenario; 3] = [
+    Scenario {
+        scene: Scene::new(DepthSensor::TOF_8X8, 0x70F),
+        frames: 144,
+        filter_size: 1,
+        window_radius: 2.0,
+        session: 1,
+        tick_budget: 2048,
+    },
+    Scenario {
+        scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD1),
+        frames: 8,
+        filter_size: 1,
+        window_radius: 2.5,
+        session: 2,
+        tick_budget: 8192,
+    },
+    Scenario {
+        scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD3),
+        frames: 8,
+        filter_size: 3,
+        window_radius: 2.5,
+        session: 3,
+        tick_budget: 8192,
+    },
+];
+
+impl Scenario {
+    /// The map configuration.
+    pub fn map_config(&self) -> Result<MapConfig, ConfigError> {
+        MapConfig::new(
+            0.1,
+            0.5,
+            self.filter_size,
+            Prior::default(),
+            KernelMode::VoxelOffset,
+        )
+    }
+
+    /// The session configuration on the wire (default codec, no PCA).
+    pub fn session_config(&self, dim: usize) -> Result<SessionConfig, ConfigError> {
+        Ok(SessionConfig::new(
+            &self.map_config()?,
+            dim,
+            SummaryCodec::DEFAULT,
+            0,
+        ))
+    }
+
+    /// Clear `map` and configure it for this scenario.
+    pub fn configure<const D: usize, const CAP: usize, const P: usize>(
+        &self,
+        map: &mut LocalMap<D, CAP, P>,
+    ) -> Result<(), ConfigError> {
+        map.configure(self.map_config()?, self.window_radius)
+    }
+
+    /// The encoder settings (robot, session).
+    pub fn encoder_settings(&self) -> EncoderSettings {
+        EncoderSettings::new(SELF_TEST_ROBOT, self.session)
+    }
+}
+
+/// What [`run`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RunReport {
+    /// Sensor returns generated.
+    pub points: u32,
+    /// Points the map accepted.
+    pub integrated: u32,
+    /// Points refused, by reason.
+    pub rejections: RejectionCounts,
+    /// The map's counters.
+    pub counters: Counters,
+    /// Most voxels held at the end of a frame.
+    pub peak_voxels: u32,
+    /// Voxels flushed at the end.
+    pub flushed: u32,
+    /// The encoder's link statistics at the end.
+    pub link: LinkStats,
+}
+
+/// Run a scenario on a map configured with [`Scenario::map_config`] and [`Scenario::window_radius`]
+/// (see [`Scenario::configure`]): integrate every frame (the map's work bracketed by `probe`), after each
+/// frame let `encoder` spend the scenario's byte budget on `w`, and at the end flush the map and send
+/// everything queued plus a final link-statistics frame. `on_frame` sees each frame's report (the firmware
+/// logs it and marks the end of the frame for the instruction counter). `encoder` must be fresh, built from
+/// [`Scenario::session_config`] and [`Scenario::encoder_settings`].
+pub fn run<
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const K: usize,
+    const QB: usize,
+    const N: usize,
+    W,
+    M,
+>(
+    scenario: &Scenario,
+    map: &mut LocalMap<D, CAP, P>,
+    encoder: &mut FrameEncoder<D, QB, N>,
+    chunk: &mut Chunk<D, K>,
+    w: &mut W,
+    probe: &mut M,
+    mut on_frame: impl FnMut(u32, &FrameReport, &LocalMap<D, CAP, P>),
+) -> Result<RunReport, RunError<W::Error>>
+where
+    W: embedded_io::Write,
+    M: Probe,
+{
+    let config = scenario.map_config().map_err(RunError::Config)?;
+    if map.config() != &config || !map.is_empty() || map.counters() != Counters::default() {
+        return Err(RunError::NotConfigured);
+    }
+    let none = || core::iter::empty::<Evicted<'_, D>>();
+    let mut report = RunReport::default();
+    for frame in 0..scenario.frames {
+        let f = integrate_frame(&scenario.scene, frame, map, chunk, encoder, probe);
+        report.points += f.points;
+        report.integrated += f.integrated;
+        report.peak_voxels = report.peak_voxels.max(map.len() as u32);
+        on_frame(frame, &f, map);
+        encoder
+            .tick(w, scenario.tick_budget, none())
+            .map_err(RunError::from)?;
+    }
+    // Flush: the queue refuses when full, so alternate flushing and sending until the map is empty.
+    loop {
+        match map.flush(encoder) {
+            Ok(n) => {
+                report.flushed += n as u32;
+                break;
+            }
+            Err(n) => {
+                report.flushed += n as u32;
+                let t = encoder
+                    .tick(w, usize::MAX, none())
+                    .map_err(RunError::from)?;
+                if t.evicted_sent == 0 {
+                    return Err(RunError::Stuck);
+                }
+            }
+        }
+    }
+    while encoder.queued() > 0 {
+        let t = encoder
+            .tick(w, usize::MAX, none())
+            .map_err(RunError::from)?;
+        if t.evicted_sent == 0 {
+            return Err(RunError::Stuck);
+        }
+    }
+    encoder.send_stats(w).map_err(RunError::Write)?;
+    report.rejections = map.rejections();
+    report.counters = map.counters();
+    report.link = encoder.stats();
+    Ok(report)
+}
+
+/// Why [`run`] stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunError<E> {
+    /// The scenario's map configuration is invalid.
+    Config(ConfigError),
+    /// The map was not freshly configured for this scenario.
+    NotConfigured,
+    /// The writer failed.
+    Write(E),
+    /// The encoder could not send a queued voxel (its frame size is too small for one summary).
+    Stuck,
+}
+
+impl<E> From<TickError<E>> for RunError<E> {
+    fn from(e: TickError<E>) -> Self {
+        match e {
+            TickError::Write(e, _) => Self::Write(e),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MapConfig;
+    use crate::quant::packed_len;
+    use crate::sink::Evicted;
+
+    #[test]
+    fn sin_cos_is_accurate() {
+        for i in -2000..=2000 {
+            let x = i as f32 * 0.0123;
+            let (s, c) = sin_cos(x);
+            assert!((f64::from(s) - f64::from(x).sin()).abs() < 2e-6, "sin {x}");
+            assert!((f64::from(c) - f64::from(x).cos()).abs() < 2e-6, "cos {x}");
+        }
+    }
+
+    #[test]
+    fn normal_has_unit_moments() {
+        let n = 100_000u32;
+        let (mut s, mut s2) = (0.0f64, 0.0f64);
+        for i in 0..n {
+            let v = f64::from(normal(hash(7, i)));
+            s += v;
+            s2 += v * v;
+        }
+        let mean = s / f64::from(n);
+        let var = s2 / f64::from(n) - mean * mean;
+        assert!(mean.abs() < 0.01, "mean {mean}");
+        assert!((var - 1.0).abs() < 0.02, "variance {var}");
+    }
+
+    #[test]
+    fn codebook_is_unit_and_well_separated() {
+        let cb = CategoryVectors::<64>::VECTORS;
+        for (a, va) in cb.iter().enumerate() {
+            let n: f32 = va.iter().map(|v| v * v).sum();
+            assert!((n - 1.0).abs() < 1e-5, "norm² {n}");
+            for vb in &cb[a + 1..] {
+                let cos: f32 = va.iter().zip(vb).map(|(x, y)| x * y).sum();
+                assert!(cos.abs() < 0.5, "cosine {cos}");
+            }
+            assert_eq!(CategoryVectors::<64>::classify(va), Some(a as u8));
+        }
+    }
+
+    #[test]
+    fn rays_are_unit_and_span_the_field_of_view() {
+        let s = DepthSensor::TOF_8X8;
+        for z in 0..s.zones() {
+            let r = s.ray(z);
+            let n = libm::sqrtf(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+            assert!((n - 1.0).abs() < 1e-6);
+            assert!(r[2] > 0.8);
+        }
+        // Zone 0 is top-left (x < 0, y < 0); the last is bottom-right.
+        let (a, b) = (s.ray(0), s.ray(63));
+        assert!(a[0] < 0.0 && a[1] < 0.0 && b[0] > 0.0 && b[1] > 0.0);
+        assert!((a[0] + b[0]).abs() < 1e-7);
+    }
+
+    #[test]
+    fn cast_finds_floor_walls_and_furniture() {
+        let r = Room::DEFAULT;
+        assert_eq!(r.cast([2.0, 1.5, 1.0], [0.0, 0.0, -1.0]), (1.0, FLOOR));
+        assert_eq!(r.cast([2.0, 1.5, 1.0], [0.0, 0.0, 1.0]), (1.5, CEILING));
+        assert_eq!(r.cast([2.0, 2.5, 1.0], [-1.0, 0.0, 0.0]), (2.0, WALL));
+        // Straight down onto the table top at 0.75 m.
+        let (t, c) = r.cast([1.4, 0.8, 1.0], [0.0, 0.0, -1.0]);
+        assert_eq!(c, 3);
+        assert!((t - 0.25).abs() < 1e-6);
+        // Towards +x at cabinet height: the cabinet front at x = 3.4.
+        let (t, c) = r.cast([2.0, 0.7, 1.0], [1.0, 0.0, 0.0]);
+        assert_eq!(c, 4);
+        assert!((t - 1.4).abs() < 1e-6);
+    }
+
+    #[test]
+    fn observed_points_lie_on_the_surfaces() {
+        let scene = Scene::new(DepthSensor::TOF_8X8, 3);
+        let mut f = [0.0f32; 64];
+        let mut seen = [0u32; CATEGORIES];
+        for frame in 0..scene.frames_per_turn {
+            let view = scene.view(frame);
+            let pose = view.pose();
+            for zone in 0..scene.sensor.zones() {
+                let o = scene
+                    .observe(&view, frame, zone, &mut f)
+                    .expect("closed room: always a return");
+                seen[usize::from(o.category)] += 1;
+                // Back in the map frame, the point is on its surface to within the range noise (5σ).
+                let p = to_map_frame(&pose, o.point);
+                let d = match o.category {
+                    FLOOR => p[2].abs(),
+                    CEILING => (p[2] - 2.5).abs(),
+                    WALL => [p[0], 4.0 - p[0], p[1], 3.0 - p[1]]
+                        .iter()
+                        .fold(9.0f32, |m, v| m.min(v.abs())),
+                    _ => {
+                        let b = scene
+                            .room
+                            .blocks
+                            .iter()
+                            .find(|b| b.category == o.category)
+                            .unwrap();
+                        (0..3)
+                            .map(|i| (p[i] - b.lo[i]).abs().min((p[i] - b.hi[i]).abs()))
+                            .fold(9.0f32, f32::min)
+                    }
+                };
+                assert!(
+                    d < 5.0 * scene.sensor.range_noise,
+                    "frame {frame} zone {zone}: {d} m off its {} surface",
+                    o.category
+                );
+                assert_eq!(CategoryVectors::<64>::classify(&f), Some(o.category));
+            }
+        }
+        assert!(
+            seen.iter().all(|&n| n > 0),
+            "every category is seen: {seen:?}"
+        );
+    }
+
+    #[test]
+    fn generation_is_deterministic_and_chunking_does_not_matter() {
+        const P: usize = packed_len(16);
+        type Map = LocalMap<16, 600, P>;
+        let scene = Scene::new(DepthSensor::TOF_8X8, 9);
+        let run = |chunk_points: usize| {
+            let mut map = Box::new(Map::EMPTY);
+            map.configure(MapConfig::default(), 1.5).unwrap();
+            let mut out: Vec<(i32, u32, f32)> = Vec::new();
+            let mut sink = |e: Evicted<'_, 16>| {
+                out.push((e.key.x, e.residency, e.stats.lambda));
+                Ok(())
+            };
+            let mut reports = Vec::new();
+            for frame in 0..20 {
+                reports.push(if chunk_points == 5 {
+                    let mut c = Box::new(Chunk5::ZERO);
+                    integrate_frame(&scene, frame, &mut map, &mut c, &mut sink, &mut ())
+                } else {
+                    let mut c = Box::new(Chunk64::ZERO);
+                    integrate_frame(&scene, frame, &mut map, &mut c, &mut sink, &mut ())
+                });
+            }
+            map.flush(&mut sink).unwrap();
+            (out, reports)
+        };
+        let (a, ra) = run(5);
+        let (b, rb) = run(64);
+        assert_eq!(ra, rb);
+        assert!(ra.iter().all(|r| r.points == 64), "{ra:?}");
+        assert!(ra.iter().map(|r| r.integrated).sum::<u32>() > 600, "{ra:?}");
+        assert!(a.len() > 100, "the window and the pool evict: {}", a.len());
+        assert_eq!(a, b);
+    }
+
+    extern crate std;
+    type Chunk5 = Chunk<16, 5>;
+    type Chunk64 = Chunk<16, 64>;
+    use std::boxed::Box;
+    use std::vec::Vec;
+}
