@@ -74,7 +74,8 @@ fn indoor_camera_sees_the_house() {
             let r = ((p.position[0] - cam.x).powi(2) + (p.position[1] - cam.y).powi(2)).sqrt();
             assert!(r < 6.0 * 1.5, "depth limit (6 m along the optical axis)");
             assert!(
-                p.position[2] > -0.01 && p.position[2] < house.height + 0.01,
+                p.position[2] > house.floor - 0.01
+                    && p.position[2] < house.floor + house.height + 0.01,
                 "{p:?} from {cam:?}"
             );
         }

@@ -145,7 +145,8 @@ pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame
                 } else {
                     let s = latentbki::to_map_frame(&inv, p.position);
                     out.points.push(s);
-                    out.map_points.push(p.position);
+                    // What the maps compute from (pose, sensor point): every method keys the same position.
+                    out.map_points.push(latentbki::to_map_frame(&f.pose, s));
                     out.features.push(y);
                 }
             }
@@ -468,7 +469,8 @@ pub fn table(scene: &str, results: &[MethodResult], notes: &str) -> String {
             100.0 * r.confusion.accuracy(),
             100.0 * r.confusion.miou(),
             100.0 * r.confusion.unknown() as f64 / total,
-            100.0 * r.confusion.accuracy() * total / (total - r.confusion.unknown() as f64).max(1.0),
+            100.0 * r.confusion.accuracy() * total
+                / (total - r.confusion.unknown() as f64).max(1.0),
             if r.voxels == 0 {
                 "–".to_string()
             } else {

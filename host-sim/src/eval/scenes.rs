@@ -44,8 +44,8 @@ impl Scene {
     /// The default free-text query pictured for this scene.
     pub fn default_query(&self) -> &'static str {
         match self {
-            Self::Tile => "tree",
-            Self::Indoor => "a place to sleep",
+            Self::Tile => "house",
+            Self::Indoor => "kitchen",
         }
     }
 }

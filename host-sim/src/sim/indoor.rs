@@ -88,8 +88,10 @@ pub struct IndoorScene {
     pub rooms: Vec<Room>,
     /// Door centres (xy) in the order the loop passes them.
     pub doors: Vec<[f32; 2]>,
-    /// Ceiling height, metres.
+    /// Ceiling height above the floor, metres.
     pub height: f32,
+    /// Height of the floor surface in the map, metres.
+    pub floor: f32,
 }
 
 impl RayScene for IndoorScene {
@@ -108,6 +110,9 @@ impl RayScene for IndoorScene {
 }
 
 const WALL: f32 = 0.1;
+/// Where the house's corner (and floor) sits in the map. Not on voxel boundaries: real surfaces are not
+/// aligned with the voxel grid, and a floor exactly at a boundary would straddle two voxel layers.
+const HOUSE_OFFSET: [f32; 3] = [0.013, 0.021, 0.017];
 const DOOR_W: f32 = 0.9;
 const DOOR_H: f32 = 2.1;
 
@@ -311,7 +316,32 @@ impl IndoorScene {
             rooms,
             doors: loop_doors,
             height,
+            floor: 0.0,
         }
+        .shifted(HOUSE_OFFSET)
+    }
+
+    /// The same house moved by `offset` metres.
+    pub fn shifted(mut self, offset: [f32; 3]) -> Self {
+        for b in &mut self.boxes {
+            for ((lo, hi), o) in b.min.iter_mut().zip(&mut b.max).zip(offset) {
+                *lo += o;
+                *hi += o;
+            }
+        }
+        for r in &mut self.rooms {
+            for ((lo, hi), o) in r.min.iter_mut().zip(&mut r.max).zip(offset) {
+                *lo += o;
+                *hi += o;
+            }
+        }
+        for d in &mut self.doors {
+            for (v, o) in d.iter_mut().zip(offset) {
+                *v += o;
+            }
+        }
+        self.floor += offset[2];
+        self
     }
 
     /// Centre of a room.
@@ -338,9 +368,21 @@ impl IndoorScene {
 fn furnish(b: &mut Builder, r: &Room, height: f32, outer: (f32, f32)) {
     let mut placed: Vec<([f32; 2], [f32; 2])> = Vec::new();
     let c = [(r.min[0] + r.max[0]) / 2.0, (r.min[1] + r.max[1]) / 2.0];
-    // Keep 0.5 m either side of both midlines free for the robot.
-    placed.push(([c[0] - 0.5, r.min[1]], [c[0] + 0.5, r.max[1]]));
-    placed.push(([r.min[0], c[1] - 0.5], [r.max[0], c[1] + 0.5]));
+    // Keep 0.4 m either side of the robot's corridors free: from the centre to the doors, which are in
+    // the middle of the interior walls (the walls facing the house's centre).
+    let (east, north) = (c[0] < outer.0 / 2.0, c[1] < outer.1 / 2.0);
+    let (x0, x1) = if east {
+        (c[0], r.max[0])
+    } else {
+        (r.min[0], c[0])
+    };
+    let (y0, y1) = if north {
+        (c[1], r.max[1])
+    } else {
+        (r.min[1], c[1])
+    };
+    placed.push(([x0 - 0.4, c[1] - 0.4], [x1 + 0.4, c[1] + 0.4]));
+    placed.push(([c[0] - 0.4, y0 - 0.4], [c[0] + 0.4, y1 + 0.4]));
     let items: &[&str] = match r.kind {
         "living room" => &[
             "sofa", "table", "chair", "chair", "tv", "plant", "lamp", "picture", "shelf", "window",
@@ -360,7 +402,7 @@ fn furnish(b: &mut Builder, r: &Room, height: f32, outer: (f32, f32)) {
         // (width along the wall, depth from the wall, height, bottom), on a wall or free-standing.
         let (w, d, h, z0, on_wall): (f32, f32, f32, f32, bool) = match item {
             "sofa" => (b.range(1.8, 2.2), 0.9, 0.8, 0.0, true),
-            "bed" => (1.6, 2.0, 0.5, 0.0, true),
+            "bed" => (1.4, 1.9, 0.5, 0.0, true),
             "cabinet" => (0.6, 0.5, 0.9, 0.0, true),
             "shelf" => (0.9, 0.35, 1.8, 0.0, true),
             "counter" => (2.0, 0.6, 0.9, 0.0, true),
@@ -378,7 +420,7 @@ fn furnish(b: &mut Builder, r: &Room, height: f32, outer: (f32, f32)) {
             "plant" => (0.4, 0.4, 1.0, 0.0, false),
             _ => (0.3, 0.3, 1.5, 0.0, false), // lamp
         };
-        for _attempt in 0..30 {
+        for _attempt in 0..60 {
             let (min, max) = if on_wall {
                 let side = (b.rand() * 4.0) as usize % 4;
                 // Windows only on outer walls.
@@ -538,7 +580,7 @@ pub fn sequence(scene: &IndoorScene, run: &IndoorRun) -> Sequence {
         .map(|(i, (xy, heading))| {
             // Sweep the gaze ±60° around the heading, so walls and furniture beside the path are seen.
             let yaw = heading + 1.05 * (i as f32 * 0.35).sin();
-            let pose = camera_pose([xy[0], xy[1], 1.3], yaw, 0.25);
+            let pose = camera_pose([xy[0], xy[1], scene.floor + 1.3], yaw, 0.25);
             let points = match run.sensor {
                 IndoorSensor::Camera(cam) => cam.capture(scene, &pose, &mut rng),
                 IndoorSensor::Tof(tof) => tof.capture(scene, &pose),
@@ -552,7 +594,7 @@ pub fn sequence(scene: &IndoorScene, run: &IndoorRun) -> Sequence {
         config: MapConfig::new(0.05, 0.5, 3, Prior::default(), KernelMode::VoxelOffset)
             .expect("valid indoor configuration"),
         frames,
-        cutaway_height: Some(scene.height - 0.15),
+        cutaway_height: Some(scene.floor + scene.height - 0.15),
     }
 }
 
@@ -594,8 +636,8 @@ mod tests {
         for w in a.waypoints() {
             for b in a.boxes.iter().filter(|b| b.class > 4) {
                 let inside = (0..2).all(|k| w[k] > b.min[k] && w[k] < b.max[k])
-                    && b.min[2] < 1.3
-                    && b.max[2] > 1.3;
+                    && b.min[2] < a.floor + 1.3
+                    && b.max[2] > a.floor + 1.3;
                 assert!(
                     !inside,
                     "waypoint {w:?} inside {:?}",
