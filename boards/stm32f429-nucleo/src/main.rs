@@ -1,0 +1,123 @@
+//! LatentBKI on a NUCLEO-F429ZI (STM32F429ZI: Cortex-M4F, 2 MiB flash, 192 KiB contiguous SRAM).
+//!
+//! The same loop as the QEMU firmware, wired to real peripherals: a VL53L5CX-style 8×8 ToF on I2C1
+//! (PB8 = SCL, PB9 = SDA, 400 kHz) gives ranges; each valid zone becomes a point along its ray
+//! ([`latentbki::synth::DepthSensor::TOF_8X8`] geometry); the quantized `LocalMap` lives in a static; evicted
+//! voxels stream as frames on USART3 (PD8, the ST-LINK virtual COM port, 921,600 Bd) through the core's
+//! `FrameEncoder`. Flash with `cargo run --release` (probe-rs).
+//!
+//! Stubbed, and why: the ToF firmware blob is ST's and not shipped (see `vl53l5cx.rs`; the board reports
+//! and keeps retrying); there is no camera, so every point carries the codebook's first category vector
+//! as its feature (a real robot gets features from its vision model); there is no odometry, so the pose
+//! is fixed (a real robot passes its pose estimate).
+#![no_std]
+#![no_main]
+
+mod vl53l5cx;
+
+use core::mem::MaybeUninit;
+use latentbki::frame::{EncoderSettings, FrameEncoder};
+use latentbki::local_map::LocalMap;
+use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use latentbki::quant::packed_len;
+use latentbki::synth::{CategoryVectors, DepthSensor, SELF_TEST_CAPACITY};
+use latentbki::wire::{SessionConfig, SummaryCodec};
+use latentbki::{to_map_frame, MapConfig};
+use static_cell::ConstStaticCell;
+use stm32f4xx_hal::{i2c::I2c, pac, prelude::*};
+use vl53l5cx::{MultizoneRanger, Vl53l5cx, ZoneFrame, ZONES};
+
+const D: usize = 64;
+const P: usize = packed_len(D);
+type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
+type Encoder = FrameEncoder<D, 4096, 512>;
+
+static MAP: ConstStaticCell<Map> = ConstStaticCell::new(Map::EMPTY);
+static ENCODER: ConstStaticCell<MaybeUninit<Encoder>> = ConstStaticCell::new(MaybeUninit::uninit());
+
+/// The HAL's UART speaks embedded-io 0.6; the core's encoder writes through embedded-io 0.7.
+struct Uart<W>(W);
+
+impl<W: embedded_io_06::Write> embedded_io::ErrorType for Uart<W> {
+    type Error = embedded_io::ErrorKind;
+}
+
+impl<W: embedded_io_06::Write> embedded_io::Write for Uart<W> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.0.write(buf).map_err(|_| embedded_io::ErrorKind::Other)
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        self.0.flush().map_err(|_| embedded_io::ErrorKind::Other)
+    }
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    let Some(dp) = pac::Peripherals::take() else {
+        halt()
+    };
+    let rcc = dp.RCC.constrain();
+    // 8 MHz from the ST-LINK's MCO (HSE bypass), 168 MHz system clock.
+    let clocks = rcc
+        .cfgr
+        .use_hse(8.MHz())
+        .bypass_hse_oscillator()
+        .sysclk(168.MHz())
+        .freeze();
+    let gpiob = dp.GPIOB.split();
+    let gpiod = dp.GPIOD.split();
+    let Ok(tx) = dp.USART3.tx(gpiod.pd8, 921_600.bps(), &clocks) else {
+        halt()
+    };
+    let mut uart = Uart(tx);
+    let i2c = I2c::new(dp.I2C1, (gpiob.pb8, gpiob.pb9), 400.kHz(), &clocks);
+    let mut tof = Vl53l5cx::new(i2c, vl53l5cx::DEFAULT_ADDRESS);
+
+    let config = MapConfig::DEFAULT;
+    let map = MAP.take();
+    if map.configure(config, 2.0).is_err() {
+        halt()
+    }
+    let session = SessionConfig::new(&config, D, SummaryCodec::DEFAULT, 0);
+    let Ok(encoder) = Encoder::new(session, EncoderSettings::new(1, 1)) else {
+        halt()
+    };
+    let encoder = ENCODER.take().write(encoder);
+
+    // No firmware blob here (see the module doc): keep checking the sensor until one is flashed with it.
+    while tof.init(&[]).is_err() {
+        cortex_m::asm::delay(168_000_000);
+    }
+    let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.3), UnitQuaternion::identity());
+    let sensor = DepthSensor::TOF_8X8;
+    let feature = &CategoryVectors::<D>::VECTORS[0];
+    let mut frame = ZoneFrame::EMPTY;
+    loop {
+        if !matches!(tof.data_ready(), Ok(true)) || tof.read_frame(&mut frame).is_err() {
+            continue;
+        }
+        // One batch per frame, as `LocalMap::integrate` does it, without a 64 × 256-byte feature buffer.
+        let t = pose.translation.vector;
+        map.move_window([t.x, t.y, t.z], encoder);
+        for z in (0..ZONES).filter(|&z| frame.valid(z)) {
+            let r = f32::from(frame.distance_mm[z]) * 1e-3;
+            let ray = sensor.ray(z as u32);
+            let p = to_map_frame(&pose, [ray[0] * r, ray[1] * r, ray[2] * r]);
+            let _ = map.add_point(p, feature, encoder); // refusals are counted by the map
+        }
+        map.end_batch(encoder);
+        // 921,600 Bd at 15 frames/s ≈ 6 kB per frame.
+        let _ = encoder.tick(&mut uart, 6000, core::iter::empty());
+    }
+}
+
+fn halt() -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    halt()
+}
