@@ -30,6 +30,8 @@ enum Command {
     Eval(host_sim::eval::cli::EvalArgs),
     /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
     Query(host_sim::eval::cli::QueryArgs),
+    /// Receive robots' streams (serial port, file, pty or stdin) into the global map; save it, export PNG/PLY.
+    BaseStation(host_sim::base_station::cli::BaseStationArgs),
 }
 
 /// The map configuration, shared by every command that builds a map.
@@ -156,6 +158,7 @@ fn main() -> Result<()> {
         Command::Demo(args) => host_sim::eval::cli::demo(&args, None),
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
+        Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
             let first = read_frame(&args.frames[0]).context("reading the first frame")?;

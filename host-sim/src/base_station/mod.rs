@@ -7,6 +7,7 @@
 //! all of it passes; every refusal is counted by reason, every gap in sequence numbers is counted as lost.
 //! Saving, loading, queries and exports live in the submodules.
 
+pub mod cli;
 pub mod export;
 pub mod file;
 pub mod global_map;

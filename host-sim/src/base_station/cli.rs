@@ -1,0 +1,222 @@
+//! `host-sim base-station`: receive robots' streams from a serial port, a file, a pty or stdin; keep, save
+//! and export the global map.
+
+use super::export::{write_ply, write_pngs};
+use super::{BaseStation, GlobalMap, VOCAB_CAP};
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use latentbki::wire::feature_space_id;
+use latentbki::{Codebook, Pca};
+use std::io::Read;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// Feature dimension the base station is built for (the wire's D).
+pub const DIM: usize = 64;
+/// Full text-embedding dimension.
+pub const FULL: usize = 384;
+
+/// Options of `host-sim base-station`.
+#[derive(Args, Debug)]
+pub struct BaseStationArgs {
+    /// Where the bytes come from: a file or a pty path, or `-` for stdin. Not with `--serial`.
+    input: Option<PathBuf>,
+    /// Read from a serial port (e.g. /dev/ttyUSB0) instead.
+    #[arg(long, conflicts_with = "input")]
+    serial: Option<String>,
+    /// Serial baud rate.
+    #[arg(long, default_value_t = 115_200)]
+    baud: u32,
+    /// Stop after this many seconds (serial ports and ptys never end by themselves).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Continue this saved map (if the file exists) and save back to it at the end.
+    #[arg(long)]
+    map: Option<PathBuf>,
+    /// PCA of the robots' features (.npz with `mean` (384) and `components` (64×384), float32), to decode
+    /// labels and queries; it must match the robots' feature-space id.
+    #[arg(long)]
+    pca: Option<PathBuf>,
+    /// Vocabulary: comma-separated phrases of the built-in embedding table (default: the 12 ASPRS classes).
+    #[arg(long)]
+    classes: Option<String>,
+    /// Text query for the heatmap (a phrase of the built-in table).
+    #[arg(long)]
+    query: Option<String>,
+    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`.
+    #[arg(long)]
+    png: Option<PathBuf>,
+    /// Pixels per voxel in the PNGs.
+    #[arg(long, default_value_t = 4)]
+    scale: u32,
+    /// Write the map as an ASCII PLY point cloud.
+    #[arg(long)]
+    ply: Option<PathBuf>,
+}
+
+fn read_pca(path: &PathBuf) -> Result<Box<Pca<DIM, FULL>>> {
+    let mut npz =
+        npyz::npz::NpzArchive::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let mut array = |name: &str, len: usize| -> Result<Vec<f32>> {
+        let f = npz
+            .by_name(name)?
+            .with_context(|| format!("{}: no array `{name}`", path.display()))?;
+        let v: Vec<f32> = f.into_vec()?;
+        if v.len() != len {
+            bail!(
+                "{}: `{name}` has {} values, expected {len}",
+                path.display(),
+                v.len()
+            );
+        }
+        Ok(v)
+    };
+    let mean = array("mean", FULL)?;
+    let comps = array("components", DIM * FULL)?;
+    let mut pca = Box::new(Pca {
+        mean: [0.0; FULL],
+        components: [[0.0; FULL]; DIM],
+    });
+    pca.mean.copy_from_slice(&mean);
+    for (row, chunk) in pca.components.iter_mut().zip(comps.chunks_exact(FULL)) {
+        row.copy_from_slice(chunk);
+    }
+    Ok(pca)
+}
+
+/// Run the command.
+pub fn run(args: &BaseStationArgs) -> Result<()> {
+    let mut base = match &args.map {
+        Some(p) if p.exists() => {
+            let map = GlobalMap::<DIM>::load(p)?;
+            println!("continuing {} ({} voxels)", p.display(), map.len());
+            BaseStation::from_map(map)
+        }
+        _ => BaseStation::<DIM>::adopting(),
+    };
+    let mut source: Box<dyn Read> = match (&args.serial, &args.input) {
+        (Some(port), _) => Box::new(
+            serialport::new(port, args.baud)
+                .timeout(Duration::from_millis(200))
+                .open()
+                .with_context(|| format!("opening serial port {port}"))?,
+        ),
+        (None, Some(p)) if p.as_os_str() == "-" => Box::new(std::io::stdin()),
+        (None, Some(p)) => {
+            Box::new(std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?)
+        }
+        (None, None) => bail!("give an input file, `-` for stdin, or --serial PORT"),
+    };
+    let start = Instant::now();
+    let deadline = args.duration.map(Duration::from_secs_f64);
+    let mut buf = [0u8; 4096];
+    loop {
+        if deadline.is_some_and(|d| start.elapsed() >= d) {
+            break;
+        }
+        match source.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => base.receive(&buf[..n]),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+                ) => {}
+            Err(e) => return Err(e).context("reading the input"),
+        }
+    }
+    let s = base.stats();
+    println!(
+        "frames accepted {}; summaries merged {}, live {}, ignored copies {}; frames lost {} (late {}); refused: CRC {}, COBS {}, short {}, overflow {}, version {}, malformed {}, wrong config {}, invalid voxel {}, duplicate {}",
+        s.frames, s.merged, s.updated, s.ignored, s.lost, s.late,
+        s.decoder.crc_errors, s.decoder.cobs_errors, s.decoder.too_short, s.decoder.overflows,
+        s.rejected.version, s.rejected.malformed, s.rejected.wrong_config, s.rejected.invalid_voxel, s.rejected.duplicate_frames
+    );
+    for ((robot, session), st) in base.sessions() {
+        println!(
+            "robot {robot} session {session}: {} frames received, {} lost{}",
+            st.seq.received,
+            st.seq.lost,
+            st.link.map_or(String::new(), |l| format!(
+                "; robot reports {} frames sent, {} evicted voxels, {} refused by its queue",
+                l.frames_sent, l.evicted_sent, l.refused
+            ))
+        );
+    }
+    let Some(map) = base.map() else {
+        bail!("no session header with a {DIM}-dimensional configuration was received: nothing to keep");
+    };
+    println!("global map: {} voxels", map.len());
+    if let Some(p) = &args.map {
+        map.save(p)
+            .with_context(|| format!("saving {}", p.display()))?;
+        println!("saved {}", p.display());
+    }
+    // Vocabulary (needs the PCA the robots used).
+    let vocab: Option<(Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>)> = match &args
+        .pca
+    {
+        None => None,
+        Some(p) => {
+            let pca = read_pca(p)?;
+            let id = feature_space_id(&pca);
+            if id != map.config().feature_space {
+                bail!(
+                    "{}: feature-space id {id:#010x} is not the robots' ({:#010x}): labels would be meaningless",
+                    p.display(),
+                    map.config().feature_space
+                );
+            }
+            let table = crate::sim::vocab::Vocabulary::builtin();
+            let names: Vec<String> = match &args.classes {
+                Some(c) => c.split(',').map(|s| s.trim().to_string()).collect(),
+                None => table.phrases().into_iter().take(12).collect(),
+            };
+            let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+            let emb = table
+                .embeddings(&refs)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            let cb =
+                Codebook::from_pca(&pca, &emb).map_err(|e| anyhow::anyhow!("vocabulary: {e}"))?;
+            Some((names, cb, pca))
+        }
+    };
+    let query = match (&args.query, &vocab) {
+        (Some(q), Some((_, _, pca))) => {
+            let table = crate::sim::vocab::Vocabulary::builtin();
+            let e = table
+                .embeddings(&[q.as_str()])
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            Some(
+                Codebook::<DIM, VOCAB_CAP>::from_pca(pca, &e)
+                    .map_err(|e| anyhow::anyhow!("query: {e}"))?,
+            )
+        }
+        (Some(_), None) => bail!("--query needs --pca"),
+        _ => None,
+    };
+    let empty =
+        Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
+    let cb = vocab.as_ref().map_or(&empty, |v| &v.1);
+    if let Some(prefix) = &args.png {
+        for f in write_pngs(map, cb, query.as_ref().map(|q| (q, 0)), prefix, args.scale)? {
+            println!("wrote {}", f.display());
+        }
+    }
+    if let Some(p) = &args.ply {
+        write_ply(map, cb, p)?;
+        println!("wrote {}", p.display());
+    }
+    if let Some((names, _, _)) = &vocab {
+        let mut counts = vec![0usize; names.len()];
+        for k in map.sorted_keys() {
+            if let Some((l, _)) = map.label(&k, cb) {
+                counts[l] += 1;
+            }
+        }
+        for (n, c) in names.iter().zip(counts) {
+            println!("  {n}: {c} voxels");
+        }
+    }
+    Ok(())
+}
