@@ -1,0 +1,48 @@
+//! Any bytes, in any chunking, into the frame decoder and the message parser: never a panic, and every
+//! accepted frame's summaries either decode or are refused.
+#![no_main]
+
+use latentbki::frame::{Feed, FrameDecoder};
+use latentbki::wire::{parse_body, Message, SummaryCodec};
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&chunk, bytes)) = data.split_first() else {
+        return;
+    };
+    let chunk = usize::from(chunk).max(1);
+    let mut dec = FrameDecoder::<512>::new();
+    for c in bytes.chunks(chunk) {
+        let mut input = c;
+        loop {
+            match dec.feed(input) {
+                Feed::NeedMore => break,
+                Feed::Error { rest, .. } => input = rest,
+                Feed::Frame { body, rest } => {
+                    if let Ok((_, Message::Voxels(batch))) = parse_body(body) {
+                        for codec in [
+                            SummaryCodec::DEFAULT,
+                            SummaryCodec {
+                                mean_bits: 8,
+                                psi_blocks: 64,
+                            },
+                        ] {
+                            for s in batch.iter::<64>(codec) {
+                                if let Ok(s) = s {
+                                    assert!(
+                                        s.key.in_range()
+                                            && s.stats.lambda > 0.0
+                                            && s.stats.is_finite()
+                                    );
+                                }
+                            }
+                        }
+                    }
+                    input = rest;
+                }
+            }
+        }
+    }
+    // The parser on raw bytes too (no CRC in the way).
+    let _ = parse_body(bytes);
+});

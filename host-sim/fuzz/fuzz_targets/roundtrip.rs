@@ -1,0 +1,93 @@
+//! Voxels built from fuzz bytes → FrameEncoder (as an eviction sink, with a byte budget) → bytes →
+//! FrameDecoder: every voxel the encoder took arrives with its key, residency and λ exact.
+#![no_main]
+
+use latentbki::frame::{EncoderSettings, Feed, FrameDecoder};
+use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec};
+use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, VoxelKey, VoxelStats};
+use libfuzzer_sys::fuzz_target;
+
+const D: usize = 8;
+
+struct Buf(Vec<u8>);
+impl embedded_io::ErrorType for Buf {
+    type Error = core::convert::Infallible;
+}
+impl embedded_io::Write for Buf {
+    fn write(&mut self, b: &[u8]) -> Result<usize, Self::Error> {
+        self.0.extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+fuzz_target!(|data: &[u8]| {
+    if data.len() < 2 {
+        return;
+    }
+    let codec = SummaryCodec {
+        mean_bits: 2 + data[0] % 7,
+        psi_blocks: 1 + data[1] % D as u8,
+    };
+    let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
+    let mut enc = FrameEncoder::<D, 2048, 256>::new(config, EncoderSettings::new(1, 1)).unwrap();
+    let mut out = Buf(Vec::new());
+    let mut sent = Vec::new();
+    let f = |c: &[u8]| f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+    let record = 12 + 4 * (1 + 2 * D);
+    for (i, c) in data[2..].chunks_exact(record).enumerate() {
+        let key = VoxelKey::new(
+            i32::from_le_bytes([c[0], c[1], c[2], c[3]]) >> 2,
+            i32::from_le_bytes([c[4], c[5], c[6], c[7]]) >> 2,
+            i32::from_le_bytes([c[8], c[9], c[10], c[11]]) >> 2,
+        );
+        let v = &c[12..];
+        let stats = VoxelStats::<D> {
+            lambda: f(v),
+            mean: core::array::from_fn(|d| f(&v[4 + 4 * d..])),
+            psi: core::array::from_fn(|d| f(&v[4 + 4 * D + 4 * d..]).abs()),
+        };
+        let ok = stats.is_finite() && stats.lambda > 0.0;
+        if enc
+            .evict(Evicted {
+                key,
+                stats: &stats,
+                residency: i as u32,
+            })
+            .is_err()
+        {
+            enc.tick(&mut out, 700, core::iter::empty()).unwrap();
+            continue;
+        }
+        if ok {
+            sent.push((key, i as u32, stats.lambda));
+        }
+    }
+    while enc.queued() > 0 {
+        enc.tick(&mut out, 700, core::iter::empty()).unwrap();
+    }
+    let mut dec = FrameDecoder::<256>::new();
+    let mut got = Vec::new();
+    let mut input = &out.0[..];
+    loop {
+        match dec.feed(input) {
+            Feed::NeedMore => break,
+            Feed::Error { error, .. } => panic!("clean stream refused: {error:?}"),
+            Feed::Frame { body, rest } => {
+                if let (_, Message::Voxels(b)) = parse_body(body).unwrap() {
+                    for s in b.iter::<D>(codec) {
+                        let s = s.unwrap();
+                        got.push((s.key, s.residency, s.stats.lambda));
+                    }
+                }
+                input = rest;
+            }
+        }
+    }
+    assert_eq!(got.len(), sent.len());
+    for (a, b) in got.iter().zip(&sent) {
+        assert_eq!((a.0, a.1, a.2.to_bits()), (b.0, b.1, b.2.to_bits()));
+    }
+});
