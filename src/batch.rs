@@ -14,13 +14,18 @@ use crate::kernel::KernelLut;
 use crate::key::{KeyError, VoxelKey};
 use crate::stats::VoxelStats;
 
+/// Largest accepted |feature component|. Ψ accumulates k·(y − μ)², and f32 overflows near 3.4e38; network
+/// features (PCA-compressed CLIP/LSeg) are O(1–100).
+pub const FEATURE_LIMIT: f32 = 1e9;
+
 /// Why one input point was not integrated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Rejection {
     /// Its position has a NaN or infinite coordinate.
     NonFinitePosition,
-    /// Its feature has a NaN or infinite component.
+    /// Its feature has a NaN or infinite component, or one beyond ±[`FEATURE_LIMIT`] (whose square would
+    /// overflow Ψ in f32).
     NonFiniteFeature,
     /// Its position is too far from the map origin for a voxel key.
     KeyOutOfRange,
@@ -79,7 +84,8 @@ pub fn locate<const D: usize, const CAP: usize>(
         KeyError::NonFinite => Rejection::NonFinitePosition,
         KeyError::OutOfRange => Rejection::KeyOutOfRange,
     })?;
-    if !feature.iter().all(|v| v.is_finite()) {
+    // `!(|v| <= limit)` is also true for NaN; infinities exceed the limit.
+    if feature.iter().any(|v| !(libm::fabsf(*v) <= FEATURE_LIMIT)) {
         return Err(Rejection::NonFiniteFeature);
     }
     Ok((key, lut.cell_of(position, key)))

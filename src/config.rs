@@ -112,7 +112,11 @@ impl MapConfig {
         voxel_size: 0.1,
         kernel_length: 0.5,
         filter_size: 3,
-        prior: Prior { lambda: 0.0, mean: 0.0, psi: 1.0 },
+        prior: Prior {
+            lambda: 0.0,
+            mean: 0.0,
+            psi: 1.0,
+        },
         mode: KernelMode::VoxelOffset,
     };
 
@@ -121,7 +125,11 @@ impl MapConfig {
         voxel_size: 0.0,
         kernel_length: 0.0,
         filter_size: 0,
-        prior: Prior { lambda: 0.0, mean: 0.0, psi: 0.0 },
+        prior: Prior {
+            lambda: 0.0,
+            mean: 0.0,
+            psi: 0.0,
+        },
         mode: KernelMode::VoxelOffset,
     };
 

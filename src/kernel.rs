@@ -101,7 +101,8 @@ impl<const CAP: usize> KernelLut<CAP> {
         let f = 2 * reach + 1;
         let mut dense = [0u16; MAX_NEIGHBOURS];
         for (j, o) in offsets.iter().enumerate() {
-            let i = ((i32::from(o[2]) + reach) * f + (i32::from(o[1]) + reach)) * f + (i32::from(o[0]) + reach);
+            let i = ((i32::from(o[2]) + reach) * f + (i32::from(o[1]) + reach)) * f
+                + (i32::from(o[0]) + reach);
             dense[i as usize] = j as u16 + 1;
         }
         let mut weights = heapless::Vec::new();
@@ -149,7 +150,10 @@ impl<const CAP: usize> KernelLut<CAP> {
         match self.dense.get(i) {
             Some(&j) if j != 0 => {
                 let n = self.offsets.len();
-                self.weights.get(usize::from(cell) * n + usize::from(j - 1)).copied().unwrap_or(0.0)
+                self.weights
+                    .get(usize::from(cell) * n + usize::from(j - 1))
+                    .copied()
+                    .unwrap_or(0.0)
             }
             _ => 0.0,
         }

@@ -26,8 +26,8 @@ pub mod decode;
 pub mod frame;
 pub mod inference;
 pub mod kernel;
-pub mod local_map;
 pub mod key;
+pub mod local_map;
 pub mod quant;
 pub mod sink;
 pub mod stats;
@@ -37,13 +37,13 @@ pub mod wire;
 pub use batch::{locate, spread, Rejection, RejectionCounts};
 pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
 pub use decode::{Codebook, CodebookError, Pca};
+pub use frame::{FrameDecoder, FrameEncoder, SeqTracker};
 pub use kernel::{sparse_kernel, KernelLut};
+pub use key::{to_map_frame, VoxelKey};
 pub use local_map::LocalMap;
 pub use quant::packed_len;
-pub use key::{to_map_frame, VoxelKey};
 pub use sink::{Evicted, EvictionSink, SinkFull};
 pub use stats::VoxelStats;
-pub use frame::{FrameDecoder, FrameEncoder, SeqTracker};
 pub use wire::{SessionConfig, SummaryCodec};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.

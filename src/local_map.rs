@@ -49,7 +49,13 @@ struct Slot<const D: usize, const P: usize> {
 }
 
 impl<const D: usize, const P: usize> Slot<D, P> {
-    const EMPTY: Self = Self { voxel: QuantVoxel::EMPTY, key: [0; 3], residency: 0, unsent: f16::ZERO, flags: 0 };
+    const EMPTY: Self = Self {
+        voxel: QuantVoxel::EMPTY,
+        key: [0; 3],
+        residency: 0,
+        unsent: f16::ZERO,
+        flags: 0,
+    };
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -65,7 +71,7 @@ struct Group<const D: usize> {
 pub struct Counters {
     /// Points integrated.
     pub points: u32,
-    /// Voxels handed to the sink.
+    /// Voxels handed to the sink (voxels holding only the prior are freed without it).
     pub evicted: u32,
     /// Evictions the sink refused (the voxel stayed).
     pub refused: u32,
@@ -136,7 +142,10 @@ fn hash(k: VoxelKey) -> u32 {
 
 impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     const TABLE: usize = 2 * CAP;
-    const CAP_OK: () = assert!(CAP > 0 && CAP < u16::MAX as usize, "CAP must be in 1..65535");
+    const CAP_OK: () = assert!(
+        CAP > 0 && CAP < u16::MAX as usize,
+        "CAP must be in 1..65535"
+    );
 
     /// An unconfigured, empty map, for `static` placement; call [`Self::configure`] before use. Every byte
     /// is zero, so a `static` of it is placed in .bss and costs no flash.
@@ -165,7 +174,12 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
             no_room: 0,
             outside_window: 0,
         },
-        counters: Counters { points: 0, evicted: 0, refused: 0, slots_written: 0 },
+        counters: Counters {
+            points: 0,
+            evicted: 0,
+            refused: 0,
+            slots_written: 0,
+        },
         mass: 0.0,
         mass_carry: 0.0,
     };
@@ -298,7 +312,11 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
             }
             let home = Self::home(unwrap(self.slots[usize::from(e - 1)].key, self.centre));
             // The entry at j may fill the hole unless its home lies cyclically in (hole, j].
-            let stays = if hole <= j { hole < home && home <= j } else { hole < home || home <= j };
+            let stays = if hole <= j {
+                hole < home && home <= j
+            } else {
+                hole < home || home <= j
+            };
             if !stays {
                 self.set_entry(hole, e);
                 self.set_entry(j, 0);
@@ -317,18 +335,25 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     fn evict_slot<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
         let slot = self.slots[s];
         let key = unwrap(slot.key, self.centre);
-        slot.voxel.decode_into(&mut self.scratch);
-        let evicted = Evicted { key, stats: &self.scratch, residency: u32::from(slot.residency) };
-        if sink.evict(evicted).is_err() {
-            self.counters.refused = self.counters.refused.saturating_add(1);
-            return false;
+        // A voxel holding only the prior (its batch was refused) carries no observation: free it quietly.
+        if slot.voxel.lambda > self.prior.lambda {
+            slot.voxel.decode_into(&mut self.scratch);
+            let evicted = Evicted {
+                key,
+                stats: &self.scratch,
+                residency: u32::from(slot.residency),
+            };
+            if sink.evict(evicted).is_err() {
+                self.counters.refused = self.counters.refused.saturating_add(1);
+                return false;
+            }
+            self.counters.evicted = self.counters.evicted.saturating_add(1);
         }
         if let Some((pos, _)) = self.find(key) {
             self.index_remove(pos);
         }
         self.slots[s] = Slot::EMPTY;
         self.len -= 1;
-        self.counters.evicted = self.counters.evicted.saturating_add(1);
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
         true
     }
@@ -490,14 +515,21 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
             }
         };
         // Sensors return points in scan order: the last group is the likeliest match.
-        let found = self.groups.iter().rposition(|g| g.key == key && g.cell == cell);
+        let found = self
+            .groups
+            .iter()
+            .rposition(|g| g.key == key && g.cell == cell);
         let g = match found {
             Some(g) => g,
             None => {
                 if self.groups.is_full() {
                     self.apply_groups(sink);
                 }
-                let group = Group { key, cell, moments: VoxelStats::EMPTY };
+                let group = Group {
+                    key,
+                    cell,
+                    moments: VoxelStats::EMPTY,
+                };
                 // Cannot fail: the scratch was just emptied if it was full.
                 let _ = self.groups.push(group);
                 self.groups.len() - 1
@@ -576,7 +608,12 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                 self.slots[s].voxel.decode_into(&mut self.scratch);
                 let mut mass = 0.0f32;
                 for grp in &self.groups[g..] {
-                    let w = self.lut.weight_at(grp.cell, t.x - grp.key.x, t.y - grp.key.y, t.z - grp.key.z);
+                    let w = self.lut.weight_at(
+                        grp.cell,
+                        t.x - grp.key.x,
+                        t.y - grp.key.y,
+                        t.z - grp.key.z,
+                    );
                     if w > 0.0 {
                         self.scratch.absorb_scaled(w, &grp.moments);
                         mass += w * grp.moments.lambda;
@@ -605,12 +642,15 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
 
     /// Every held voxel, decoded.
     pub fn iter(&self) -> impl Iterator<Item = LiveVoxel<D>> + '_ {
-        self.slots.iter().filter(|s| s.flags & OCCUPIED != 0).map(|s| LiveVoxel {
-            key: unwrap(s.key, self.centre),
-            stats: s.voxel.decode(),
-            residency: u32::from(s.residency),
-            unsent: s.unsent.to_f32(),
-        })
+        self.slots
+            .iter()
+            .filter(|s| s.flags & OCCUPIED != 0)
+            .map(|s| LiveVoxel {
+                key: unwrap(s.key, self.centre),
+                stats: s.voxel.decode(),
+                residency: u32::from(s.residency),
+                unsent: s.unsent.to_f32(),
+            })
     }
 
     /// The held voxel with the most kernel mass absorbed since it was last marked sent (for streaming the
@@ -659,5 +699,6 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     }
 
     /// Bytes one voxel costs: its slot plus its share of the index.
-    pub const BYTES_PER_VOXEL: usize = core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
+    pub const BYTES_PER_VOXEL: usize =
+        core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
 }

@@ -27,7 +27,15 @@ fn frame(seed: u32, x: f32, n: usize) -> (Vec<[f32; 3]>, Vec<[f32; D]>) {
     let mut feats = Vec::new();
     for _ in 0..n {
         let wall = r() < 0.5;
-        let p = if wall { [x + r() * 2.0 - 1.0, if r() < 0.5 { -1.0 } else { 1.0 }, r() * 2.0] } else { [x + r() * 2.0 - 1.0, r() * 2.0 - 1.0, 0.0] };
+        let p = if wall {
+            [
+                x + r() * 2.0 - 1.0,
+                if r() < 0.5 { -1.0 } else { 1.0 },
+                r() * 2.0,
+            ]
+        } else {
+            [x + r() * 2.0 - 1.0, r() * 2.0 - 1.0, 0.0]
+        };
         let mut y = [0.0f32; D];
         y[usize::from(wall)] = 1.0;
         for v in y.iter_mut() {
@@ -60,7 +68,10 @@ impl latentbki::EvictionSink<D> for Collect {
 #[test]
 fn bytes_per_voxel() {
     let b = LocalMap::<64, 2048, { packed_len(64) }>::BYTES_PER_VOXEL;
-    println!("bytes per voxel at D = 64: {b} (slot + index); f32 posterior: {}", core::mem::size_of::<VoxelStats<64>>());
+    println!(
+        "bytes per voxel at D = 64: {b} (slot + index); f32 posterior: {}",
+        core::mem::size_of::<VoxelStats<64>>()
+    );
     assert!(b < core::mem::size_of::<VoxelStats<64>>() / 3);
 }
 
@@ -77,19 +88,29 @@ fn kernel_mass_is_conserved_through_pressure_and_moves() {
         let local: Vec<[f32; 3]> = p.iter().map(|q| [q[0] - x, q[1], q[2] - 0.5]).collect();
         points += map.integrate(&pose, &local, &f, &mut sink);
     }
-    assert!(sink.voxels.len() > 1000, "capacity pressure and moves must evict: {}", sink.voxels.len());
+    assert!(
+        sink.voxels.len() > 1000,
+        "capacity pressure and moves must evict: {}",
+        sink.voxels.len()
+    );
     assert!(points > 20_000);
     let in_map: f64 = map.iter().map(|v| f64::from(v.stats.lambda)).sum();
     let applied = f64::from(map.kernel_mass());
     let rel = (in_map + sink.mass - applied).abs() / applied;
-    println!("applied {applied:.3}, map {in_map:.3}, emitted {:.3}, rel {rel:.2e}", sink.mass);
+    println!(
+        "applied {applied:.3}, map {in_map:.3}, emitted {:.3}, rel {rel:.2e}",
+        sink.mass
+    );
     assert!(rel < 1e-4, "relative conservation error {rel}");
     // λ₀ = 0, so Σλ is the data's mass. The same voxel evicted twice comes with two residencies.
     let mut seen: HashMap<(VoxelKey, u32), usize> = HashMap::new();
     for (k, r, _) in &sink.voxels {
         *seen.entry((*k, *r)).or_default() += 1;
     }
-    assert!(seen.values().all(|&c| c == 1), "a residency is emitted once");
+    assert!(
+        seen.values().all(|&c| c == 1),
+        "a residency is emitted once"
+    );
 }
 
 #[test]
@@ -105,7 +126,11 @@ fn window_moves_copy_nothing_and_lookups_stay_short() {
         let evicted = map.move_window([x, 0.0, 0.0], &mut sink);
         let after = map.counters();
         // Only evicted slots are written; the rest of the map is not touched.
-        assert_eq!(after.slots_written - before.slots_written, evicted as u32, "move {step}");
+        assert_eq!(
+            after.slots_written - before.slots_written,
+            evicted as u32,
+            "move {step}"
+        );
         if step % 50 == 0 {
             let (p, f) = frame(step, x, 2000);
             let local: Vec<[f32; 3]> = p.iter().map(|q| [q[0] - x, q[1], q[2]]).collect();
@@ -116,26 +141,47 @@ fn window_moves_copy_nothing_and_lookups_stay_short() {
         }
     }
     println!("probe runs over the trajectory: worst mean {mean_probe:.2}, longest {max_probe}");
-    assert!(mean_probe < 2.5, "lookup must stay O(1): mean probe run {mean_probe}");
+    assert!(
+        mean_probe < 2.5,
+        "lookup must stay O(1): mean probe run {mean_probe}"
+    );
     assert!(max_probe <= 40, "longest probe run {max_probe}");
     // Everything left is inside the window (20 voxels), or one kernel reach beyond its edge: a corner
     // neighbour of a point on the edge is 20 + √3 voxels out.
     let c = map.centre();
     let worst = map.iter().map(|v| v.key.distance_squared(c)).max().unwrap();
-    assert!(worst as f64 <= (20.0 + 3f64.sqrt()).powi(2), "a voxel {worst} voxels² from the centre");
+    assert!(
+        worst as f64 <= (20.0 + 3f64.sqrt()).powi(2),
+        "a voxel {worst} voxels² from the centre"
+    );
 }
 
 #[test]
 fn bad_points_are_counted_and_never_stored() {
     let mut map = boxed::<256>(3.0);
     let mut sink = Collect::default();
-    let pts = [[f32::NAN, 0.0, 0.0], [0.0, f32::INFINITY, 0.0], [0.0, 0.0, 0.0], [1e12, 0.0, 0.0], [50.0, 0.0, 0.0], [0.0; 3]];
+    let pts = [
+        [f32::NAN, 0.0, 0.0],
+        [0.0, f32::INFINITY, 0.0],
+        [0.0, 0.0, 0.0],
+        [1e12, 0.0, 0.0],
+        [50.0, 0.0, 0.0],
+        [0.0; 3],
+    ];
     let mut feats = [[0.5f32; D]; 6];
     feats[2][3] = f32::NAN;
     let n = map.integrate(&Isometry3::identity(), &pts, &feats, &mut sink);
     let r = map.rejections();
     assert_eq!(n, 1);
-    assert_eq!((r.non_finite_position, r.non_finite_feature, r.key_out_of_range, r.outside_window), (2, 1, 1, 1));
+    assert_eq!(
+        (
+            r.non_finite_position,
+            r.non_finite_feature,
+            r.key_out_of_range,
+            r.outside_window
+        ),
+        (2, 1, 1, 1)
+    );
     assert!(map.iter().all(|v| v.stats.is_finite()));
     assert_eq!(map.get(VoxelKey::new(0, 0, 0)).unwrap().lambda, 1.0);
 }
@@ -147,28 +193,37 @@ fn a_refusing_sink_loses_nothing() {
     let (p, f) = frame(3, 0.0, 500);
     map.integrate(&Isometry3::identity(), &p, &f, &mut sink);
     assert_eq!(map.len(), 64);
-    let held: Vec<_> = map.iter().map(|v| (v.key, v.residency, v.stats.lambda)).collect();
+    // The voxels holding data (with 64 slots some groups were refused, leaving prior-only voxels).
+    let held: Vec<_> = map
+        .iter()
+        .filter(|v| v.stats.lambda > 0.0)
+        .map(|v| (v.key, v.residency))
+        .collect();
+    assert!(held.len() > 40);
     let mass_before = f64::from(map.kernel_mass());
     sink.refuse = true;
     let (p, f) = frame(4, 0.0, 500);
     map.integrate(&Isometry3::identity(), &p, &f, &mut sink);
     map.move_window([40.0, 0.0, 0.0], &mut sink);
-    // Every voxel held before is still held, unchanged in count; refusals and rejected points are counted.
-    assert_eq!(map.len(), 64);
+    // Every voxel that held data is still held (only prior-only voxels, holding no observation, may have been
+    // recycled); refusals and rejected points are counted.
     let counters = map.counters();
     assert!(counters.refused > 0);
     assert!(map.rejections().no_room > 0);
-    for (k, r, _) in &held {
+    for (k, r) in &held {
         let v = map.iter().find(|v| v.key == *k).expect("voxel kept");
         assert_eq!(v.residency, *r);
     }
     let in_map: f64 = map.iter().map(|v| f64::from(v.stats.lambda)).sum();
     let applied = f64::from(map.kernel_mass());
     assert!(applied >= mass_before);
-    assert!((in_map + sink.mass - applied).abs() < 1e-4 * applied, "nothing applied was lost");
+    assert!(
+        (in_map + sink.mass - applied).abs() < 1e-4 * applied,
+        "nothing applied was lost"
+    );
     // Once the sink drains, the map empties completely into it.
     sink.refuse = false;
-    assert_eq!(map.flush(&mut sink), Ok(64));
+    let n = map.len();
+    assert_eq!(map.flush(&mut sink), Ok(n));
     assert!(map.is_empty());
 }
-

@@ -10,7 +10,9 @@ use host_sim::ReferenceMap;
 use latentbki::nalgebra::Isometry3;
 use latentbki::rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
-use latentbki::{packed_len, Codebook, Evicted, LocalMap, MapConfig, SinkFull, VoxelKey, VoxelStats};
+use latentbki::{
+    packed_len, Codebook, Evicted, LocalMap, MapConfig, SinkFull, VoxelKey, VoxelStats,
+};
 use std::collections::HashMap;
 
 const D: usize = 64;
@@ -42,7 +44,10 @@ struct Merge<'a> {
 impl latentbki::EvictionSink<D> for Merge<'_> {
     fn evict(&mut self, v: Evicted<'_, D>) -> Result<(), SinkFull> {
         let prior = self.prior;
-        self.merged.entry(v.key).and_modify(|m| m.merge(v.stats, &prior)).or_insert(*v.stats);
+        self.merged
+            .entry(v.key)
+            .and_modify(|m| m.merge(v.stats, &prior))
+            .or_insert(*v.stats);
         Ok(())
     }
 }
@@ -57,20 +62,30 @@ fn run(prior_psi: f32) {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
     let classes = class_embeddings(6, &mut rng);
     let codebook = Codebook::<D, 8>::from_embeddings(&classes).unwrap();
-    let prior = latentbki::Prior { psi: prior_psi, ..Default::default() };
+    let prior = latentbki::Prior {
+        psi: prior_psi,
+        ..Default::default()
+    };
     let config = MapConfig::new(0.1, 0.5, 3, prior, latentbki::KernelMode::VoxelOffset).unwrap();
 
     let mut reference = ReferenceMap::<D>::new(config).unwrap();
     let mut local = Box::new(LocalMap::<D, CAP, P>::EMPTY);
     local.configure(config, 8.0).unwrap();
     let mut merged = HashMap::new();
-    let mut sink = Merge { prior: *reference.prior(), merged: &mut merged };
+    let mut sink = Merge {
+        prior: *reference.prior(),
+        merged: &mut merged,
+    };
 
     // A sweep along x and back: 40 frames, each a third of the tile points within 7.5 m of the pose (map frame).
     let (lo, hi) = tile.bounds;
     for step in 0..40 {
         let t = step as f32 / 19.0;
-        let x = if step < 20 { lo[0] + t * (hi[0] - lo[0]) } else { hi[0] - (t - 1.0) * (hi[0] - lo[0]) };
+        let x = if step < 20 {
+            lo[0] + t * (hi[0] - lo[0])
+        } else {
+            hi[0] - (t - 1.0) * (hi[0] - lo[0])
+        };
         let pose_xyz = [x, 0.5 * (lo[1] + hi[1]), lo[2] + 5.0];
         let mut pts = Vec::new();
         let mut feats = Vec::new();
@@ -79,7 +94,11 @@ fn run(prior_psi: f32) {
             if d2 > 7.5 * 7.5 || rng.next_u32() % 3 != 0 {
                 continue;
             }
-            let seen = if rng.next_u32() % 10 == 0 { (c as usize + 1) % classes.len() } else { c as usize };
+            let seen = if rng.next_u32() % 10 == 0 {
+                (c as usize + 1) % classes.len()
+            } else {
+                c as usize
+            };
             let y: [f32; D] = core::array::from_fn(|i| classes[seen][i] + 0.1 * gauss(&mut rng));
             pts.push(*p);
             feats.push(y);
@@ -103,7 +122,9 @@ fn run(prior_psi: f32) {
     let mut trace_rel = Vec::new();
     let mut lambda_rel: f64 = 0.0;
     for (key, r) in reference.voxels() {
-        let q = merged.get(key).expect("every reference voxel reached the base station");
+        let q = merged
+            .get(key)
+            .expect("every reference voxel reached the base station");
         lambda_rel = lambda_rel.max(((q.lambda - r.lambda) / r.lambda).abs() as f64);
         if codebook.argmax(&q.mean).unwrap().0 == codebook.argmax(&r.mean).unwrap().0 {
             agree += 1;
@@ -131,13 +152,21 @@ fn run(prior_psi: f32) {
     );
     assert!(evictions > 1000, "the window must evict during the sweep");
     assert!(agreement >= 0.99, "argmax agreement {agreement}");
-    assert!(med_dim <= 0.05, "per-dimension predictive variance median relative error {med_dim}");
+    assert!(
+        med_dim <= 0.05,
+        "per-dimension predictive variance median relative error {med_dim}"
+    );
     assert!(lambda_rel < 1e-3);
 }
 
 fn on_big_stack(f: impl FnOnce() + Send + 'static) {
     // The map is a few MB: give the test thread room for the by-value construction in debug builds.
-    std::thread::Builder::new().stack_size(64 << 20).spawn(f).unwrap().join().unwrap();
+    std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(f)
+        .unwrap()
+        .join()
+        .unwrap();
 }
 
 /// The default prior (Ψ₀ = 1, the authors'): the prior dominates the scatter of unit-norm features.
