@@ -620,7 +620,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                     }
                 }
                 let slot = &mut self.slots[s];
-                slot.voxel = QuantVoxel::encode(&self.scratch, &mut self.dither);
+                slot.voxel = slot.voxel.reencode(&self.scratch, &mut self.dither);
                 slot.unsent = f16::from_f32(slot.unsent.to_f32() + mass);
                 slot.flags |= REFERENCED;
                 self.counters.slots_written = self.counters.slots_written.saturating_add(1);

@@ -137,6 +137,16 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
 
     /// Encode a posterior (non-finite or negative inputs are clamped: callers only pass finite posteriors).
     pub fn encode(stats: &VoxelStats<D>, dither: &mut Dither) -> Self {
+        Self::EMPTY.reencode(stats, dither)
+    }
+
+    /// Encode an updated posterior of this voxel, keeping its μ scale when it still fits.
+    ///
+    /// Why: a new scale puts every dimension on a new grid, and re-rounding all of them at every update makes
+    /// the stored μ drift like a random walk. On an unchanged grid an unchanged value re-encodes exactly and a
+    /// small update adds only noise proportional to its size. So the scale changes only when μ outgrows it or
+    /// shrinks below a quarter of it, and a new scale gets 25 % headroom.
+    pub fn reencode(&self, stats: &VoxelStats<D>, dither: &mut Dither) -> Self {
         let () = Self::CHECK;
         // Plain comparisons, not f32::max: inputs are finite, and on a Cortex-M4 `max` is an `fmaxf` call.
         let mut max_abs = 0.0f32;
@@ -146,11 +156,19 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 max_abs = a;
             }
         }
-        // Round the scale up so every |μᵢ| / scale ≤ q_max after f16 rounding.
-        let mut mu_scale = f16::from_f32(max_abs / MU_QMAX as f32);
-        if mu_scale.to_f32() * (MU_QMAX as f32) < max_abs {
-            mu_scale = f16::from_bits(mu_scale.to_bits() + 1);
-        }
+        let qmax = MU_QMAX as f32;
+        let prev = self.mu_scale.to_f32();
+        let keep = prev > 0.0 && max_abs <= prev * qmax && max_abs * 4.0 >= prev * qmax;
+        let mu_scale = if keep {
+            self.mu_scale
+        } else {
+            // Round the scale up so every |μᵢ| / scale ≤ q_max after f16 rounding.
+            let mut s = f16::from_f32(max_abs * 1.25 / qmax);
+            if s.to_f32() * qmax < max_abs {
+                s = f16::from_bits(s.to_bits() + 1);
+            }
+            s
+        };
         let scale = mu_scale.to_f32();
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
 
@@ -278,6 +296,41 @@ mod tests {
             (sum_psi / n as f64 - 1.01).abs() < 1e-3,
             "{}",
             sum_psi / n as f64
+        );
+    }
+
+    /// Many small updates of one voxel (a long residency): the stored μ must track the f32 μ, not drift.
+    #[test]
+    fn repeated_requantization_does_not_drift() {
+        let mut d = Dither::new(5);
+        let mut truth = VoxelStats::<D> {
+            lambda: 1.0,
+            mean: [0.0; D],
+            psi: [1.0; D],
+        };
+        for i in 0..D {
+            truth.mean[i] = ((i as f32) * 0.91).cos() * 0.2;
+        }
+        let mut code = QuantVoxel::<D, P>::encode(&truth, &mut d);
+        let y: [f32; D] = core::array::from_fn(|i| {
+            ((i as f32) * 0.91).cos() * 0.2 + ((i * 7) as f32).sin() * 0.05
+        });
+        for _ in 0..2000 {
+            let mut stored = code.decode();
+            stored.absorb_point(0.05, &y);
+            truth.absorb_point(0.05, &y);
+            code = code.reencode(&stored, &mut d);
+        }
+        let back = code.decode();
+        let err: f32 = (0..D)
+            .map(|i| (back.mean[i] - truth.mean[i]).powi(2))
+            .sum::<f32>()
+            .sqrt();
+        let norm: f32 = truth.mean.iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!(
+            err / norm < 0.06,
+            "μ drifted: relative error {}",
+            err / norm
         );
     }
 

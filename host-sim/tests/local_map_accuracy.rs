@@ -121,11 +121,16 @@ fn run(prior_psi: f32) {
     let mut var_rel = Vec::new();
     let mut trace_rel = Vec::new();
     let mut lambda_rel: f64 = 0.0;
+    let (mut dmu2, mut mu2) = (0.0f64, 0.0f64);
     for (key, r) in reference.voxels() {
         let q = merged
             .get(key)
             .expect("every reference voxel reached the base station");
         lambda_rel = lambda_rel.max(((q.lambda - r.lambda) / r.lambda).abs() as f64);
+        for i in 0..D {
+            dmu2 += f64::from(q.mean[i] - r.mean[i]).powi(2);
+            mu2 += f64::from(r.mean[i]).powi(2);
+        }
         if codebook.argmax(&q.mean).unwrap().0 == codebook.argmax(&r.mean).unwrap().0 {
             agree += 1;
         }
@@ -143,11 +148,12 @@ fn run(prior_psi: f32) {
     let agreement = agree as f64 / reference.len() as f64;
     let (med_dim, med_trace) = (median(var_rel), median(trace_rel));
     println!(
-        "prior psi {prior_psi}: voxels {} (evictions during the run {evictions}); argmax agreement {:.4}; predictive variance median rel. error per dimension {:.4}, of the trace {:.4}; max λ rel. error {lambda_rel:.2e}; {} B/voxel",
+        "prior psi {prior_psi}: voxels {} (evictions during the run {evictions}); argmax agreement {:.4}; predictive variance median rel. error per dimension {:.4}, of the trace {:.4}; max λ rel. error {lambda_rel:.2e}; μ relative RMS error {:.4}; {} B/voxel",
         reference.len(),
         agreement,
         med_dim,
         med_trace,
+        (dmu2 / mu2).sqrt(),
         LocalMap::<D, CAP, P>::BYTES_PER_VOXEL
     );
     assert!(evictions > 1000, "the window must evict during the sweep");
@@ -157,6 +163,11 @@ fn run(prior_psi: f32) {
         "per-dimension predictive variance median relative error {med_dim}"
     );
     assert!(lambda_rel < 1e-3);
+    assert!(
+        (dmu2 / mu2).sqrt() < 0.1,
+        "μ relative RMS error {}",
+        (dmu2 / mu2).sqrt()
+    );
 }
 
 fn on_big_stack(f: impl FnOnce() + Send + 'static) {
