@@ -4,6 +4,7 @@
 //! Run: `cargo bench -p host-sim --bench integrate`.
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
+use host_sim::order::morton_order;
 use host_sim::sim::tile::Tile;
 use host_sim::ReferenceMap;
 use latentbki::nalgebra::Isometry3;
@@ -89,6 +90,26 @@ fn bench(c: &mut Criterion) {
                 |m| {
                     for (p, y) in pts.iter().zip(&feats) {
                         let _ = m.add_point(*p, y, &mut discard);
+                    }
+                    m.end_batch(&mut discard);
+                },
+                BatchSize::PerIteration,
+            )
+        });
+        // The same batch put in Morton order first (the sort is inside the timed region).
+        group.bench_function(format!("local_map_morton/{name}"), |b| {
+            b.iter_batched_ref(
+                || {
+                    let mut m = Box::new(LocalMap::<D, CAP, P>::EMPTY);
+                    m.configure(config, window).unwrap();
+                    let t = centre.translation.vector;
+                    m.move_window([t.x, t.y, t.z], &mut discard);
+                    m
+                },
+                |m| {
+                    for i in morton_order(&pts, config.voxel_size()) {
+                        let i = i as usize;
+                        let _ = m.add_point(pts[i], &feats[i], &mut discard);
                     }
                     m.end_batch(&mut discard);
                 },

@@ -6,6 +6,7 @@ pub mod base_station;
 pub mod eval;
 pub mod link;
 pub mod npy_io;
+pub mod order;
 pub mod reference_map;
 pub mod sim;
 
