@@ -61,6 +61,15 @@ impl<const CAP: usize> KernelLut<CAP> {
 
     /// Compute the table for `config`. Fails only if `CAP` is too small.
     pub fn new(config: &MapConfig) -> Result<Self, ConfigError> {
+        let mut lut = Self::EMPTY;
+        lut.rebuild(config)?;
+        Ok(lut)
+    }
+
+    /// Recompute the table in place for `config` (no table-sized temporary on the stack: on a
+    /// microcontroller the table lives inside a `static` map). On error the table reaches nothing.
+    pub fn rebuild(&mut self, config: &MapConfig) -> Result<(), ConfigError> {
+        *self = Self::EMPTY;
         let reach = config.reach();
         let cells = config.subvoxel_cells();
         let vs = config.voxel_size();
@@ -86,42 +95,43 @@ impl<const CAP: usize> KernelLut<CAP> {
             sparse_kernel(libm::sqrtf(d2) * vs, ell)
         };
 
-        let mut offsets: heapless::Vec<Offset, MAX_NEIGHBOURS> = heapless::Vec::new();
+        let offsets = &mut self.offsets;
         for dz in -reach..=reach {
             for dy in -reach..=reach {
                 for dx in -reach..=reach {
                     let o = [dx as i8, dy as i8, dz as i8];
                     if (0..n_cells).any(|c| weight(c, o) > 0.0) {
                         // f ≤ 7 so at most 343 offsets: cannot overflow MAX_NEIGHBOURS.
-                        offsets.push(o).map_err(|_| ConfigError::LutCapacity)?;
+                        if offsets.push(o).is_err() {
+                            *self = Self::EMPTY;
+                            return Err(ConfigError::LutCapacity);
+                        }
                     }
                 }
             }
         }
         let f = 2 * reach + 1;
-        let mut dense = [0u16; MAX_NEIGHBOURS];
-        for (j, o) in offsets.iter().enumerate() {
+        for (j, o) in self.offsets.iter().enumerate() {
             let i = ((i32::from(o[2]) + reach) * f + (i32::from(o[1]) + reach)) * f
                 + (i32::from(o[0]) + reach);
-            dense[i as usize] = j as u16 + 1;
-        }
-        let mut weights = heapless::Vec::new();
-        for c in 0..n_cells {
-            for &o in &offsets {
-                weights
-                    .push(weight(c, o))
-                    .map_err(|_| ConfigError::LutCapacity)?;
+            if let Some(d) = self.dense.get_mut(i as usize) {
+                *d = j as u16 + 1;
             }
         }
-        Ok(Self {
-            offsets,
-            dense,
-            reach,
-            weights,
-            cells,
-            cell_size: 1.0 / f32::from(cells),
-            inv_voxel_size: 1.0 / vs,
-        })
+        for c in 0..n_cells {
+            for j in 0..self.offsets.len() {
+                let w = weight(c, self.offsets[j]);
+                if self.weights.push(w).is_err() {
+                    *self = Self::EMPTY;
+                    return Err(ConfigError::LutCapacity);
+                }
+            }
+        }
+        self.reach = reach;
+        self.cells = cells;
+        self.cell_size = 1.0 / f32::from(cells);
+        self.inv_voxel_size = 1.0 / vs;
+        Ok(())
     }
 
     /// The neighbour offsets with a non-zero weight (in some sub-cell).

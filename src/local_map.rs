@@ -191,7 +191,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         if !(radius >= 1.0 && radius <= MAX_WINDOW_VOXELS as f32) {
             return Err(ConfigError::Window);
         }
-        self.lut = KernelLut::new(&config)?;
+        self.lut.rebuild(&config)?;
         self.config = config;
         self.prior = VoxelStats::from_prior(&config.prior());
         self.dither = Dither::new(0x5EED_1234);
