@@ -11,6 +11,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/qemu-mps2-an386"
 export CARGO_TARGET_DIR="$PWD/target"
+# Panic locations embed source paths, and `latentbki` is a path dependency: without a fixed prefix the
+# golden size would depend on where the repository is checked out.
+ROOT=$(cd ../.. && pwd)
+export RUSTFLAGS="--remap-path-prefix=$ROOT=/latentbki"
 HOST=$(rustc -vV | sed -n 's/^host: //p')
 LLVM_BIN="$(rustc --print sysroot)/lib/rustlib/$HOST/bin"
 [ -x "$LLVM_BIN/llvm-size" ] || rustup component add llvm-tools
