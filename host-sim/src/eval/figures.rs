@@ -395,6 +395,9 @@ pub fn sweep_plot(path: &Path, scene: &str, points: &[SweepPoint]) -> Result<(),
         chart
             .configure_mesh()
             .x_desc("points per frame (log)")
+            .x_labels(8)
+            .x_label_formatter(&|x| format!("{x:.0}"))
+            .light_line_style(WHITE)
             .y_desc(name)
             .label_style((FONT, 13))
             .axis_desc_style((FONT, 14))
