@@ -155,7 +155,19 @@ fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Fra
 fn main() -> Result<()> {
     match Cli::parse().command {
         // The base station's simulated link plugs into the demo here (`Some(Box<dyn VoxelSink>)`).
-        Command::Demo(args) => host_sim::eval::cli::demo(&args, None),
+        Command::Demo(args) => {
+            // The robot's evictions cross a faulty serial link (byte error rate 1e-4) to a base station.
+            let link =
+                host_sim::demo_link::DemoLink::new(&latentbki::MapConfig::default(), 1e-4, 7)?;
+            let sink = host_sim::demo_link::DemoLinkSink(link.clone());
+            host_sim::eval::cli::demo(&args, Some(Box::new(sink)))?;
+            let mut link = link
+                .lock()
+                .map_err(|_| anyhow::anyhow!("link state poisoned"))?;
+            link.finish();
+            println!("base station: {}", link.summary());
+            Ok(())
+        }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
