@@ -14,9 +14,10 @@ use crate::kernel::KernelLut;
 use crate::key::{KeyError, VoxelKey};
 use crate::stats::VoxelStats;
 
-/// Largest accepted |feature component|. Ψ accumulates k·(y − μ)², and f32 overflows near 3.4e38; network
-/// features (PCA-compressed CLIP/LSeg) are O(1–100).
-pub const FEATURE_LIMIT: f32 = 1e9;
+/// Largest accepted |feature component|. Network features (PCA-compressed CLIP/LSeg) are O(1–100); the
+/// on-device map stores μ with a per-voxel f16 scale (at most 65504 × 31 ≈ 2·10⁶ with its headroom) and Ψ
+/// accumulates squares, so larger values would overflow the codes rather than carry information.
+pub const FEATURE_LIMIT: f32 = 1e5;
 
 /// Why one input point was not integrated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -24,8 +25,7 @@ pub const FEATURE_LIMIT: f32 = 1e9;
 pub enum Rejection {
     /// Its position has a NaN or infinite coordinate.
     NonFinitePosition,
-    /// Its feature has a NaN or infinite component, or one beyond ±[`FEATURE_LIMIT`] (whose square would
-    /// overflow Ψ in f32).
+    /// Its feature has a NaN or infinite component, or one beyond ±[`FEATURE_LIMIT`].
     NonFiniteFeature,
     /// Its position is too far from the map origin for a voxel key.
     KeyOutOfRange,

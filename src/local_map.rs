@@ -58,6 +58,15 @@ impl<const D: usize, const P: usize> Slot<D, P> {
     };
 }
 
+/// Why no slot could be had.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum NoSlot {
+    /// Every slot is pinned by the groups being applied: apply them first, then retry.
+    Pinned,
+    /// The sink refused the eviction (back-pressure).
+    Refused,
+}
+
 #[derive(Clone, Copy, Debug)]
 struct Group<const D: usize> {
     key: VoxelKey,
@@ -359,7 +368,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     }
 
     /// A free slot for `k` (pinned for this flush): a never-used or freed slot if any, else CLOCK eviction.
-    fn alloc<S: EvictionSink<D>>(&mut self, k: VoxelKey, sink: &mut S) -> Option<usize> {
+    fn alloc<S: EvictionSink<D>>(&mut self, k: VoxelKey, sink: &mut S) -> Result<usize, NoSlot> {
         let s = if self.len < CAP {
             let mut s = self.free_hand;
             while self.slots[s].flags & OCCUPIED != 0 {
@@ -368,7 +377,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
             self.free_hand = if s + 1 == CAP { 0 } else { s + 1 };
             s
         } else {
-            let mut found = None;
+            let mut found = Err(NoSlot::Pinned);
             for _ in 0..2 * CAP + 1 {
                 let s = self.clock_hand;
                 self.clock_hand = if s + 1 == CAP { 0 } else { s + 1 };
@@ -379,9 +388,11 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                     self.slots[s].flags &= !REFERENCED;
                     continue;
                 }
-                if self.evict_slot(s, sink) {
-                    found = Some(s);
-                }
+                found = if self.evict_slot(s, sink) {
+                    Ok(s)
+                } else {
+                    Err(NoSlot::Refused)
+                };
                 break; // a refusing sink will refuse the next one too
             }
             found?
@@ -397,7 +408,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         self.index_insert(k, s);
         self.len += 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
-        Some(s)
+        Ok(s)
     }
 
     /// Whether a key is close enough to a centre to be stored wrapped (every axis within ±2¹⁵).
@@ -482,18 +493,19 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     ) -> usize {
         let t = pose.translation.vector;
         self.move_window([t.x, t.y, t.z], sink);
-        let mut n = 0;
+        let before = self.counters.points;
         for (p, y) in points.iter().zip(features) {
-            if self.add_point(to_map_frame(pose, *p), y, sink).is_ok() {
-                n += 1;
-            }
+            // A refusal is counted in `rejections`; nothing else to do here.
+            let _ = self.add_point(to_map_frame(pose, *p), y, sink);
         }
         self.end_batch(sink);
-        n
+        // Points the map took: accepted into the batch and not refused when their group was applied.
+        self.counters.points.wrapping_sub(before) as usize
     }
 
     /// Add one map-frame point to the current batch (applied when the scratch fills or at
-    /// [`Self::end_batch`]).
+    /// [`Self::end_batch`]). `Ok` means accepted into the batch: if the map then has no room for its
+    /// voxel group, the group's points are refused and counted as [`Rejection::NoRoom`].
     pub fn add_point<S: EvictionSink<D>>(
         &mut self,
         position: [f32; 3],
@@ -545,19 +557,31 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         self.apply_groups(sink);
     }
 
-    /// Apply the grouped scratch: (A) make sure every reached voxel has a slot, pinned against eviction;
-    /// groups that cannot get one are refused whole (counted); (B) visit each reached voxel once — owned
-    /// by the first group that reaches it — decode it, absorb every group in reach, re-encode it.
+    /// Apply the grouped scratch in rounds: (A) give every voxel a group reaches a slot, pinned against
+    /// eviction — when the pool runs out of unpinned slots, the groups placed so far are applied first and
+    /// the rest wait for the next round; a group is refused (its points counted as `NoRoom`) only if the
+    /// sink refuses evictions or the pool cannot hold one group's reach; (B) visit each reached voxel once —
+    /// owned by the first group that reaches it — decode it, absorb every placed group in reach, re-encode.
     fn apply_groups<S: EvictionSink<D>>(&mut self, sink: &mut S) {
-        if self.groups.is_empty() {
-            return;
+        while !self.groups.is_empty() {
+            self.epoch = (self.epoch + 1) & 0x3F;
+            let placed = self.place_groups(sink);
+            self.absorb_placed(placed);
+            // Drop the applied prefix, keeping the waiting groups in order.
+            let n = self.groups.len();
+            for i in placed..n {
+                self.groups.swap(i - placed, i);
+            }
+            self.groups.truncate(n - placed);
         }
-        self.epoch = (self.epoch + 1) & 0x3F;
-        // Pass A: slots. A refused group is removed from the scratch.
-        let mut g = 0;
-        while g < self.groups.len() {
-            let (key, cell) = (self.groups[g].key, self.groups[g].cell);
-            let mut ok = true;
+    }
+
+    /// Pass A: pin slots for groups from the front; returns how many are placed.
+    fn place_groups<S: EvictionSink<D>>(&mut self, sink: &mut S) -> usize {
+        let mut placed = 0;
+        while placed < self.groups.len() {
+            let (key, cell) = (self.groups[placed].key, self.groups[placed].cell);
+            let mut result = Ok(());
             for j in 0..self.lut.offsets().len() {
                 if self.lut.weights(cell).get(j).copied().unwrap_or(0.0) <= 0.0 {
                     continue;
@@ -569,25 +593,32 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                         *f = (*f & (OCCUPIED | REFERENCED)) | (self.epoch << EPOCH_SHIFT);
                     }
                     None => {
-                        if self.alloc(t, sink).is_none() {
-                            ok = false;
+                        if let Err(e) = self.alloc(t, sink) {
+                            result = Err(e);
                             break;
                         }
                     }
                 }
             }
-            if ok {
-                g += 1;
-            } else {
-                let n = self.groups[g].moments.lambda as u32;
-                self.rejections.no_room = self.rejections.no_room.saturating_add(n);
-                self.counters.points = self.counters.points.saturating_sub(n);
-                self.groups.swap_remove(g);
+            match result {
+                Ok(()) => placed += 1,
+                Err(NoSlot::Pinned) if placed > 0 => break,
+                Err(_) => {
+                    let n = self.groups[placed].moments.lambda as u32;
+                    self.rejections.no_room = self.rejections.no_room.saturating_add(n);
+                    self.counters.points = self.counters.points.saturating_sub(n);
+                    self.groups.remove(placed);
+                }
             }
         }
+        placed
+    }
+
+    /// Pass B over the placed groups `..placed`.
+    fn absorb_placed(&mut self, placed: usize) {
         // Pass B: each target once.
         let reach = self.lut.reach();
-        for g in 0..self.groups.len() {
+        for g in 0..placed {
             let (key, cell) = (self.groups[g].key, self.groups[g].cell);
             for j in 0..self.lut.offsets().len() {
                 if self.lut.weights(cell).get(j).copied().unwrap_or(0.0) <= 0.0 {
@@ -607,7 +638,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                 let Some((_, s)) = self.find(t) else { continue };
                 self.slots[s].voxel.decode_into(&mut self.scratch);
                 let mut mass = 0.0f32;
-                for grp in &self.groups[g..] {
+                for grp in &self.groups[g..placed] {
                     let w = self.lut.weight_at(
                         grp.cell,
                         t.x - grp.key.x,
@@ -627,7 +658,6 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                 self.add_mass(mass);
             }
         }
-        self.groups.clear();
     }
 
     // ----- reading -----------------------------------------------------------------------------------

@@ -227,3 +227,30 @@ fn a_refusing_sink_loses_nothing() {
     assert_eq!(map.flush(&mut sink), Ok(n));
     assert!(map.is_empty());
 }
+
+/// Every point handed to `integrate` is either integrated or counted as rejected, never both — also when
+/// groups are refused for lack of room (a fuzzing finding).
+#[test]
+fn every_point_is_integrated_or_counted_once() {
+    let mut map = boxed::<64>(3.0);
+    let mut refuse = false;
+    let mut sink = |_v: Evicted<'_, D>| {
+        refuse = !refuse;
+        if refuse {
+            Err(SinkFull)
+        } else {
+            Ok(())
+        }
+    };
+    for step in 0..20 {
+        let (p, f) = frame(step, 0.0, 300);
+        let before = map.rejections().total();
+        let n = map.integrate(&Isometry3::identity(), &p, &f, &mut sink);
+        let rejected = (map.rejections().total() - before) as usize;
+        assert_eq!(n + rejected, p.len(), "step {step}");
+    }
+    assert!(
+        map.rejections().no_room > 0,
+        "the test must exercise refused groups"
+    );
+}
