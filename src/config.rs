@@ -53,6 +53,17 @@ pub enum KernelMode {
     },
 }
 
+impl KernelMode {
+    /// The mode from a sub-voxel cell count, as configuration files and the wire carry it: 0 is
+    /// [`KernelMode::VoxelOffset`]. (The inverse is [`MapConfig::subvoxel_cells`], which gives 1 there.)
+    pub const fn from_subvoxel_cells(cells: u8) -> Self {
+        match cells {
+            0 => Self::VoxelOffset,
+            cells => Self::SubVoxel { cells },
+        }
+    }
+}
+
 /// A complete, validated map configuration. Construct with [`MapConfig::new`] or [`MapConfig::default`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

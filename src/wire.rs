@@ -166,10 +166,7 @@ impl SessionConfig {
             mean: self.prior_mean,
             psi: self.prior_psi,
         };
-        let mode = match self.subvoxel_cells {
-            0 => KernelMode::VoxelOffset,
-            cells => KernelMode::SubVoxel { cells },
-        };
+        let mode = KernelMode::from_subvoxel_cells(self.subvoxel_cells);
         MapConfig::new(
             self.voxel_size,
             self.kernel_length,

@@ -76,17 +76,17 @@ fn bench(c: &mut Criterion) {
     group.sample_size(10);
     group.throughput(Throughput::Elements(N as u64));
     for (name, (pts, feats), window) in [("surface", surface(), 20.0f32), ("cube6m", cube(), 8.0)] {
-        let centre = Isometry3::translation(pts[0][0], pts[0][1], pts[0][2]);
+        // An empty map whose window is centred on the first point.
+        let fresh = || {
+            let mut m = Box::new(LocalMap::<D, CAP, P>::EMPTY);
+            m.configure(config, window).unwrap();
+            m.move_window(pts[0], &mut discard);
+            m
+        };
         // The pose only places the window; points are in the map frame (identity transform).
         group.bench_function(format!("local_map/{name}"), |b| {
             b.iter_batched_ref(
-                || {
-                    let mut m = Box::new(LocalMap::<D, CAP, P>::EMPTY);
-                    m.configure(config, window).unwrap();
-                    let t = centre.translation.vector;
-                    m.move_window([t.x, t.y, t.z], &mut discard);
-                    m
-                },
+                fresh,
                 |m| {
                     for (p, y) in pts.iter().zip(&feats) {
                         let _ = m.add_point(*p, y, &mut discard);
@@ -99,13 +99,7 @@ fn bench(c: &mut Criterion) {
         // The same batch put in Morton order first (the sort is inside the timed region).
         group.bench_function(format!("local_map_morton/{name}"), |b| {
             b.iter_batched_ref(
-                || {
-                    let mut m = Box::new(LocalMap::<D, CAP, P>::EMPTY);
-                    m.configure(config, window).unwrap();
-                    let t = centre.translation.vector;
-                    m.move_window([t.x, t.y, t.z], &mut discard);
-                    m
-                },
+                fresh,
                 |m| {
                     for i in morton_order(&pts, config.voxel_size()) {
                         let i = i as usize;
