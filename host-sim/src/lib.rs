@@ -10,5 +10,7 @@ pub mod npy_io;
 pub mod order;
 pub mod reference_map;
 pub mod sim;
+#[cfg(feature = "encoder")]
+pub mod text_encoder;
 
 pub use reference_map::ReferenceMap;

@@ -32,6 +32,20 @@ enum Command {
     Query(host_sim::eval::cli::QueryArgs),
     /// Receive robots' streams (serial port, file, pty or stdin) into the global map; save it, export PNG/PLY.
     BaseStation(host_sim::base_station::cli::BaseStationArgs),
+    /// Re-embed the vocabulary with the real text encoder and write the table (feature `encoder`).
+    #[cfg(feature = "encoder")]
+    EmbedVocab(EmbedVocabArgs),
+}
+
+/// `embed-vocab`: the project tool that produced `host-sim/data/text-embeddings.tsv`.
+#[cfg(feature = "encoder")]
+#[derive(Args, Debug)]
+struct EmbedVocabArgs {
+    /// Output table.
+    #[arg(long, default_value = "host-sim/data/text-embeddings.tsv")]
+    out: PathBuf,
+    /// Phrases to embed (default: every phrase of the committed table, in order).
+    phrases: Vec<String>,
 }
 
 /// The map configuration, shared by every command that builds a map.
@@ -167,6 +181,18 @@ fn main() -> Result<()> {
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
+        #[cfg(feature = "encoder")]
+        Command::EmbedVocab(args) => {
+            let phrases = if args.phrases.is_empty() {
+                host_sim::sim::vocab::Vocabulary::builtin().phrases()
+            } else {
+                args.phrases.clone()
+            };
+            let refs: Vec<&str> = phrases.iter().map(String::as_str).collect();
+            host_sim::text_encoder::write_table(&args.out, &refs)?;
+            println!("wrote {} embeddings to {}", refs.len(), args.out.display());
+            Ok(())
+        }
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;

@@ -186,7 +186,18 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
 /// `query`: map a scene with the device map and show where the text matches.
 pub fn query(args: &QueryArgs) -> Result<()> {
     let vocab = Vocabulary::builtin();
-    let embedding = *vocab.get(&args.text)?;
+    let embedding = match vocab.get(&args.text) {
+        Ok(e) => *e,
+        // Built with the `encoder` feature, any text works: embed it now.
+        #[cfg(feature = "encoder")]
+        Err(_) => crate::text_encoder::embed(&[args.text.as_str()])?[0],
+        #[cfg(not(feature = "encoder"))]
+        Err(e) => {
+            return Err(anyhow::anyhow!(
+                "{e}\n(build with `--features encoder` to query any text)"
+            ))
+        }
+    };
     let scene = match args.scene {
         SceneArg::Indoor => Scene::Indoor,
         _ => Scene::Tile,
