@@ -13,7 +13,9 @@
 //!   move reads every key but writes only the evicted slots: nothing is copied.
 //! - **Every eviction goes to an [`EvictionSink`]**; if the sink refuses, the voxel stays and the refusal is
 //!   counted. Nothing is forgotten silently.
-//! - **Batches** are grouped by source voxel in a small f32 scratch ([`GROUPS`] groups); when it fills, the
+//! - **Batches** are grouped by source voxel in a small f32 scratch (`G` groups, [`GROUPS`] by default:
+//!   ~17 KiB at D = 64 on a device; a host can afford hundreds, and each flush re-encodes its targets, so a
+//!   bigger scratch re-encodes shared neighbours less often); when it fills, the
 //!   groups are applied target by target: each touched voxel is decoded once, absorbs every group in reach
 //!   (the paper's batch update, in Chan's sequential form) and is re-encoded once.
 
@@ -27,7 +29,7 @@ use crate::stats::VoxelStats;
 use half::f16;
 use nalgebra::Isometry3;
 
-/// Source-voxel groups held in the f32 batch scratch before they are applied.
+/// Source-voxel groups held in the f32 batch scratch before they are applied (the default `G`).
 pub const GROUPS: usize = 32;
 
 /// Largest window radius in voxels: keeps every resident key within the i16 wrap range of the centre.
@@ -35,8 +37,9 @@ pub const MAX_WINDOW_VOXELS: i32 = 16_000;
 
 const OCCUPIED: u8 = 1;
 const REFERENCED: u8 = 2;
-/// Bits 2..8 of `flags`: the flush epoch that pinned the slot.
+/// Bits 2..8 of `flags`: the flush round (1..=63) that pinned the slot; 0 = not pinned.
 const EPOCH_SHIFT: u8 = 2;
+const EPOCH_MAX: u8 = 0x3F;
 
 #[derive(Clone, Copy, Debug)]
 struct Slot<const D: usize, const P: usize> {
@@ -101,10 +104,11 @@ pub struct LiveVoxel<const D: usize> {
     pub unsent: f32,
 }
 
-/// A fixed-capacity quantized LatentBKI map of `CAP` voxels of dimension `D`; `P` = [`crate::quant::packed_len`]`(D)`.
+/// A fixed-capacity quantized LatentBKI map of `CAP` voxels of dimension `D`; `P` = [`crate::quant::packed_len`]`(D)`;
+/// `G` source-voxel groups of batch scratch.
 ///
 /// Large: place it in a `static` (see [`LocalMap::EMPTY`] and [`LocalMap::configure`]) or a `Box` on a host.
-pub struct LocalMap<const D: usize, const CAP: usize, const P: usize> {
+pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const G: usize = GROUPS> {
     config: MapConfig,
     lut: KernelLut,
     prior: VoxelStats<D>,
@@ -114,7 +118,9 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize> {
     len: usize,
     free_hand: usize,
     clock_hand: usize,
-    groups: heapless::Vec<Group<D>, GROUPS>,
+    groups: heapless::Vec<Group<D>, G>,
+    /// The group the previous point joined.
+    last_group: usize,
     scratch: VoxelStats<D>,
     centre: VoxelKey,
     radius: i32,
@@ -149,11 +155,11 @@ fn hash(k: VoxelKey) -> u32 {
     h ^ (h >> 16)
 }
 
-impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
+impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<D, CAP, P, G> {
     const TABLE: usize = 2 * CAP;
     const CAP_OK: () = assert!(
-        CAP > 0 && CAP < u16::MAX as usize,
-        "CAP must be in 1..65535"
+        CAP > 0 && CAP < u16::MAX as usize && G > 0,
+        "CAP must be in 1..65535 and G at least 1"
     );
 
     /// An unconfigured, empty map, for `static` placement; call [`Self::configure`] before use. Every byte
@@ -170,6 +176,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         free_hand: 0,
         clock_hand: 0,
         groups: heapless::Vec::new(),
+        last_group: 0,
         scratch: VoxelStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
         radius: 0,
@@ -211,6 +218,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         self.free_hand = 0;
         self.clock_hand = 0;
         self.groups.clear();
+        self.last_group = 0;
         self.radius = radius as i32;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
@@ -337,7 +345,25 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     // ----- slots -------------------------------------------------------------------------------------
 
     fn pinned(&self, s: usize) -> bool {
-        self.slots[s].flags >> EPOCH_SHIFT == self.epoch
+        let e = self.slots[s].flags >> EPOCH_SHIFT;
+        e != 0 && e == self.epoch
+    }
+
+    fn unpin(&mut self, s: usize) {
+        self.slots[s].flags &= OCCUPIED | REFERENCED;
+    }
+
+    /// Start a flush round: a new pin epoch. Epochs run 1..=63; when they wrap, stale pins (targets of a
+    /// group that could not be placed) are cleared so an old pin never reads as current.
+    fn next_epoch(&mut self) {
+        if self.epoch >= EPOCH_MAX {
+            for s in 0..CAP {
+                self.unpin(s);
+            }
+            self.epoch = 1;
+        } else {
+            self.epoch += 1;
+        }
     }
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
@@ -526,11 +552,13 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                 return Err(r);
             }
         };
-        // Sensors return points in scan order: the last group is the likeliest match.
-        let found = self
-            .groups
-            .iter()
-            .rposition(|g| g.key == key && g.cell == cell);
+        // Sensors return points in scan order: the group of the previous point is the likeliest match, then
+        // the newest groups.
+        let same = |g: &Group<D>| g.key == key && g.cell == cell;
+        let found = match self.groups.get(self.last_group) {
+            Some(g) if same(g) => Some(self.last_group),
+            _ => self.groups.iter().rposition(same),
+        };
         let g = match found {
             Some(g) => g,
             None => {
@@ -547,6 +575,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                 self.groups.len() - 1
             }
         };
+        self.last_group = g;
         self.groups[g].moments.absorb_point(1.0, feature);
         self.counters.points = self.counters.points.saturating_add(1);
         Ok(())
@@ -564,7 +593,7 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
     /// owned by the first group that reaches it — decode it, absorb every placed group in reach, re-encode.
     fn apply_groups<S: EvictionSink<D>>(&mut self, sink: &mut S) {
         while !self.groups.is_empty() {
-            self.epoch = (self.epoch + 1) & 0x3F;
+            self.next_epoch();
             let placed = self.place_groups(sink);
             self.absorb_placed(placed);
             // Drop the applied prefix, keeping the waiting groups in order.
@@ -614,10 +643,11 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
         placed
     }
 
-    /// Pass B over the placed groups `..placed`.
+    /// Pass B over the placed groups `..placed`: every target is visited once, by the first group that
+    /// reaches it (pass A pinned all of them; a visited target is unpinned, so a later group that reaches
+    /// it skips it). It is decoded, absorbs every placed group from this one on (an earlier group reaching
+    /// it would have visited it), and is re-encoded once.
     fn absorb_placed(&mut self, placed: usize) {
-        // Pass B: each target once.
-        let reach = self.lut.reach();
         for g in 0..placed {
             let (key, cell) = (self.groups[g].key, self.groups[g].cell);
             for j in 0..self.lut.offsets().len() {
@@ -625,17 +655,11 @@ impl<const D: usize, const CAP: usize, const P: usize> LocalMap<D, CAP, P> {
                     continue;
                 }
                 let t = key.offset(self.lut.offsets()[j]);
-                let reaches = |grp: &Group<D>| {
-                    let (dx, dy, dz) = (t.x - grp.key.x, t.y - grp.key.y, t.z - grp.key.z);
-                    dx.abs() <= reach
-                        && dy.abs() <= reach
-                        && dz.abs() <= reach
-                        && self.lut.weight_at(grp.cell, dx, dy, dz) > 0.0
-                };
-                if self.groups[..g].iter().any(reaches) {
-                    continue; // an earlier group owns this target
-                }
                 let Some((_, s)) = self.find(t) else { continue };
+                if !self.pinned(s) {
+                    continue; // visited by an earlier group of this round
+                }
+                self.unpin(s);
                 self.slots[s].voxel.decode_into(&mut self.scratch);
                 let mut mass = 0.0f32;
                 for grp in &self.groups[g..placed] {
