@@ -72,7 +72,11 @@ print(f"| flash (text + rodata + data) | {KB(size['flash'])} ({size['flash']} B;
 print(f"| RAM (data + bss) | {KB(size['ram'])} ({size['ram']} B) | map + stack ≤ 192 KB |")
 print(f"| map | {KB(mem['map_bytes'])}, {scen[0]['capacity']} voxels, {mem['bytes_per_voxel']} B/voxel | 2,048 voxels |")
 print(f"| stack, integrate-and-stream loop | {max(int(s['loop_high_water']) for s in stack)} B | ≤ 8 KB |")
-print(f"| stack, whole run (set-up included) | {max(int(s['setup_high_water']) for s in stack)} B | ≤ 8 KB |")
+# Whole run: the deepest of all windows (each set-up mark covers the previous loop's reports and this set-up,
+# each loop mark its loop, the tail mark the last loop and the final reports).
+whole = max([int(s['setup_high_water']) for s in stack] + [int(s['loop_high_water']) for s in stack]
+            + [int(mem['tail_stack_high_water'])])
+print(f"| stack, whole run (set-up included) | {whole} B | ≤ 8 KB |")
 for s, frames in sorted(runs.items()):
     f, pts = frames[0][0], frames[0][1]
     if pts != 4096:

@@ -19,7 +19,7 @@ use crate::sink::{Evicted, EvictionSink, SinkFull};
 use crate::stats::VoxelStats;
 use crate::wire::{
     encode_body, encode_codes, encode_summary_head, DeltaBase, FrameHeader, LinkStats, Message,
-    SessionConfig, VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
+    SessionConfig, SummaryCodec, VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
 };
 
 /// Bytes a frame body of `body_len` bytes takes on the wire, at most: two delimiters, COBS overhead, CRC.
@@ -82,6 +82,10 @@ pub enum TickError<E> {
 
 /// Streams voxel summaries as frames. `D`: feature dimension; `QB`: bytes of queue for evicted voxels;
 /// `N`: largest frame on the wire (bytes, delimiters included).
+///
+/// It holds its buffers inline (≈ `QB` + 2 `N` bytes), so on a microcontroller it belongs in a `static`:
+/// [`Self::EMPTY`] is all zero (the static lives in `.bss`) and [`Self::configure`] starts a session in
+/// place, so the encoder is never built on the stack.
 pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     settings: EncoderSettings,
     config: SessionConfig,
@@ -90,9 +94,12 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     since_header: u32,
     since_stats: u32,
     queue: [u8; QB],
+    /// Oldest entry (< `capacity`).
     head: usize,
     len: usize,
+    /// Bytes per queue entry; 0 while unconfigured.
     entry_len: usize,
+    /// Entries the queue holds; 0 while unconfigured.
     capacity: usize,
     scratch: [u8; N],
     body: [u8; N],
@@ -102,10 +109,97 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), λ (f32), all little-endian.
 const ENTRY_HEAD: usize = 20;
 
+/// The fixed part of a queue entry.
+fn entry_head(key: VoxelKey, residency: u32, lambda: f32) -> [u8; ENTRY_HEAD] {
+    let [x, y, z] = key.as_array();
+    let words = [x as u32, y as u32, z as u32, residency, lambda.to_bits()];
+    let mut head = [0u8; ENTRY_HEAD];
+    for (bytes, word) in head.chunks_exact_mut(4).zip(words) {
+        bytes.copy_from_slice(&word.to_le_bytes());
+    }
+    head
+}
+
+/// Key, residency and λ of a queue entry's fixed part.
+fn parse_entry_head(head: &[u8; ENTRY_HEAD]) -> (VoxelKey, u32, f32) {
+    let word = |i: usize| u32::from_le_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]);
+    (
+        VoxelKey::new(word(0) as i32, word(4) as i32, word(8) as i32),
+        word(12),
+        f32::from_bits(word(16)),
+    )
+}
+
+/// A session configuration that validates for no dimension: the unconfigured encoder's.
+const NO_SESSION: SessionConfig = SessionConfig {
+    dim: 0,
+    voxel_size: 0.0,
+    kernel_length: 0.0,
+    filter_size: 0,
+    subvoxel_cells: 0,
+    prior_lambda: 0.0,
+    prior_mean: 0.0,
+    prior_psi: 0.0,
+    codec: SummaryCodec {
+        mean_bits: 0,
+        psi_blocks: 0,
+    },
+    feature_space: 0,
+};
+
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    /// An encoder without a session, all zero (so a `static` of it lives in `.bss`). It refuses every
+    /// voxel and writes nothing until [`Self::configure`] starts a session.
+    pub const EMPTY: Self = Self {
+        settings: EncoderSettings {
+            robot: 0,
+            session: 0,
+            header_interval: 0,
+            stats_interval: 0,
+        },
+        config: NO_SESSION,
+        config_id: 0,
+        seq: 0,
+        since_header: 0,
+        since_stats: 0,
+        queue: [0; QB],
+        head: 0,
+        len: 0,
+        entry_len: 0,
+        capacity: 0,
+        scratch: [0; N],
+        body: [0; N],
+        stats: LinkStats::ZERO,
+    };
+
     /// An encoder for one session. Fails if the configuration is invalid for D, if the queue cannot hold
-    /// one voxel or if a frame of `N` bytes cannot carry one summary.
+    /// one voxel or if a frame of `N` bytes cannot carry one summary. (It is `QB` + 2 `N` bytes: on a
+    /// microcontroller prefer a static [`Self::EMPTY`] and [`Self::configure`].)
     pub fn new(config: SessionConfig, settings: EncoderSettings) -> Result<Self, WireError> {
+        let mut encoder = Self::EMPTY;
+        encoder.configure(config, settings)?;
+        Ok(encoder)
+    }
+
+    /// Start a session in place: everything of the previous one (queued voxels, sequence numbers,
+    /// counters) is dropped, and the next [`Self::tick`] begins with a session header. Fails as
+    /// [`Self::new`] does, and then leaves the encoder without a session.
+    pub fn configure(
+        &mut self,
+        config: SessionConfig,
+        settings: EncoderSettings,
+    ) -> Result<(), WireError> {
+        self.config = NO_SESSION;
+        self.config_id = 0;
+        self.settings = settings;
+        self.seq = 0;
+        self.since_header = 0;
+        self.since_stats = 0;
+        self.head = 0;
+        self.len = 0;
+        self.entry_len = 0;
+        self.capacity = 0;
+        self.stats = LinkStats::ZERO;
         config.validate(D)?;
         let entry_len = ENTRY_HEAD + config.codec.code_len(D);
         let capacity = QB / entry_len;
@@ -113,24 +207,17 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         if capacity == 0 || one > N || wire_len(64) > N {
             return Err(WireError::BufferFull);
         }
-        Ok(Self {
-            settings,
-            config,
-            config_id: config.id(),
-            seq: 0,
-            since_header: 0,
-            since_stats: 0,
-            queue: [0; QB],
-            head: 0,
-            len: 0,
-            entry_len,
-            capacity,
-            scratch: [0; N],
-            body: [0; N],
-            stats: LinkStats::default(),
-        })
+        self.config = config;
+        self.config_id = config.id();
+        self.entry_len = entry_len;
+        self.capacity = capacity;
+        Ok(())
     }
 
+    /// Whether a session is configured.
+    pub fn is_configured(&self) -> bool {
+        self.capacity > 0
+    }
     /// The session configuration.
     pub fn config(&self) -> &SessionConfig {
         &self.config
@@ -152,9 +239,20 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.seq
     }
 
-    fn entry(&self, i: usize) -> &[u8] {
-        let at = ((self.head + i) % self.capacity) * self.entry_len;
-        &self.queue[at..at + self.entry_len]
+    /// Queue slot `i` places after the oldest entry (`i ≤ capacity`), wrapped around the ring.
+    fn slot(&self, i: usize) -> usize {
+        let s = self.head + i;
+        if s >= self.capacity {
+            s - self.capacity
+        } else {
+            s
+        }
+    }
+
+    /// Where queue slot `slot` (< `capacity`) lies in `queue`.
+    fn slot_bytes(&self, slot: usize) -> core::ops::Range<usize> {
+        let at = slot * self.entry_len;
+        at..at + self.entry_len
     }
 
     fn header(&self) -> FrameHeader {
@@ -186,26 +284,30 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
 
     /// Append the CRC to `body[..len]`, COBS it into `scratch` between two delimiters.
     fn finish(&mut self, len: usize) -> Result<usize, WireError> {
-        let crc = CRC32.checksum(&self.body[..len]);
+        let body = self.body.get(..len).ok_or(WireError::BufferFull)?;
+        let crc = CRC32.checksum(body);
         self.body
             .get_mut(len..len + 4)
             .ok_or(WireError::BufferFull)?
             .copy_from_slice(&crc.to_le_bytes());
-        let out = &mut self.scratch;
-        *out.first_mut().ok_or(WireError::BufferFull)? = 0;
-        let n = cobs::try_encode(&self.body[..len + 4], &mut out[1..])
-            .map_err(|_| WireError::BufferFull)?;
-        *out.get_mut(n + 1).ok_or(WireError::BufferFull)? = 0;
+        let body = self.body.get(..len + 4).ok_or(WireError::BufferFull)?;
+        let (first, out) = self
+            .scratch
+            .split_first_mut()
+            .ok_or(WireError::BufferFull)?;
+        *first = 0;
+        let n = cobs::try_encode(body, out).map_err(|_| WireError::BufferFull)?;
+        *out.get_mut(n).ok_or(WireError::BufferFull)? = 0;
         Ok(n + 2)
     }
 
-    /// Write the frame in `scratch`, counting it. The sequence number advances even when the write fails
-    /// (a partly written frame must never share its number with the next one).
+    /// Write the frame in `scratch[..n]` (`n ≤ N`), counting it. The sequence number advances even when
+    /// the write fails (a partly written frame must never share its number with the next one).
     fn send<W: embedded_io::Write>(&mut self, w: &mut W, n: usize) -> Result<(), W::Error> {
         self.seq = self.seq.wrapping_add(1);
         self.since_header = self.since_header.saturating_add(1);
         self.since_stats = self.since_stats.saturating_add(1);
-        match w.write_all(&self.scratch[..n]) {
+        match w.write_all(&self.scratch[..n.min(N)]) {
             Ok(()) => {
                 self.stats.frames_sent = self.stats.frames_sent.wrapping_add(1);
                 self.stats.bytes_sent = self.stats.bytes_sent.wrapping_add(n as u32);
@@ -237,8 +339,12 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         Ok(true)
     }
 
-    /// Force a session header now (as the first frame it is sent anyway). Returns bytes written.
+    /// Force a session header now (as the first frame it is sent anyway). Returns bytes written (0
+    /// without a session).
     pub fn send_header<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<usize, W::Error> {
+        if !self.is_configured() {
+            return Ok(0);
+        }
         let n = self
             .build_message(Message::Session(self.config))
             .unwrap_or(0);
@@ -247,8 +353,11 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         Ok(n)
     }
 
-    /// Force a link-statistics frame now. Returns bytes written.
+    /// Force a link-statistics frame now. Returns bytes written (0 without a session).
     pub fn send_stats<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<usize, W::Error> {
+        if !self.is_configured() {
+            return Ok(0);
+        }
         let n = self.build_message(Message::Stats(self.stats)).unwrap_or(0);
         self.send(w, n)?;
         self.since_stats = 0;
@@ -257,7 +366,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
 
     /// Spend up to `budget` bytes: the session header if due, link statistics if due, then queued evicted
     /// voxels (oldest first), then `live` voxels in the caller's order (most changed first). Only whole
-    /// frames are written.
+    /// frames are written; without a session nothing is.
     pub fn tick<'a, W, I>(
         &mut self,
         w: &mut W,
@@ -269,6 +378,9 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         I: IntoIterator<Item = Evicted<'a, D>>,
     {
         let mut report = TickReport::default();
+        if !self.is_configured() {
+            return Ok(report);
+        }
         if self.seq == 0 || self.since_header >= self.settings.header_interval {
             if self.control_frame(w, Message::Session(self.config), budget, &mut report)? {
                 self.since_header = 0;
@@ -295,34 +407,31 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             let mut base = DeltaBase::default();
             let fits = |used: usize| wire_len(VOXEL_FRAME_OVERHEAD + used) <= limit;
             while from_queue < self.len && count < u16::MAX {
-                let e = self.entry(from_queue);
-                let le = |i: usize| [e[i], e[i + 1], e[i + 2], e[i + 3]];
-                let key = VoxelKey::new(
-                    i32::from_le_bytes(le(0)),
-                    i32::from_le_bytes(le(4)),
-                    i32::from_le_bytes(le(8)),
-                );
-                let residency = u32::from_le_bytes(le(12));
-                let lambda = f32::from_le_bytes(le(16));
-                let mut trial = base;
-                let (scratch, queue) = (&mut self.scratch, &self.queue);
-                let Ok(h) = encode_summary_head(
-                    &mut trial,
-                    key,
-                    residency,
-                    true,
-                    lambda,
-                    &mut scratch[used..],
-                ) else {
+                let bytes = self.slot_bytes(self.slot(from_queue));
+                let Some((head, codes)) = self
+                    .queue
+                    .get(bytes)
+                    .and_then(|e| e.split_first_chunk::<ENTRY_HEAD>())
+                else {
                     break;
                 };
-                let at = ((self.head + from_queue) % self.capacity) * self.entry_len;
-                let codes = &queue[at + ENTRY_HEAD..at + self.entry_len];
+                let (key, residency, lambda) = parse_entry_head(head);
+                let mut trial = base;
+                let Some(Ok(h)) = self
+                    .scratch
+                    .get_mut(used..)
+                    .map(|out| encode_summary_head(&mut trial, key, residency, true, lambda, out))
+                else {
+                    break;
+                };
                 let end = used + h + codes.len();
-                if end > scratch.len() || !fits(end) {
+                if !fits(end) {
                     break;
                 }
-                scratch[used + h..end].copy_from_slice(codes);
+                let Some(out) = self.scratch.get_mut(used + h..end) else {
+                    break;
+                };
+                out.copy_from_slice(codes);
                 used = end;
                 base = trial;
                 count += 1;
@@ -339,18 +448,22 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                         continue;
                     }
                     let mut trial = base;
-                    let Ok(h) = encode_summary_head(
-                        &mut trial,
-                        v.key,
-                        v.residency,
-                        false,
-                        v.stats.lambda,
-                        &mut self.scratch[used..],
-                    ) else {
+                    let Some(Ok(h)) = self.scratch.get_mut(used..).map(|out| {
+                        encode_summary_head(
+                            &mut trial,
+                            v.key,
+                            v.residency,
+                            false,
+                            v.stats.lambda,
+                            out,
+                        )
+                    }) else {
                         break;
                     };
-                    let Ok(c) =
-                        encode_codes(self.config.codec, v.stats, &mut self.scratch[used + h..])
+                    let Some(Ok(c)) = self
+                        .scratch
+                        .get_mut(used + h..)
+                        .map(|out| encode_codes(self.config.codec, v.stats, out))
                     else {
                         break;
                     };
@@ -373,7 +486,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             };
             self.send(w, n).map_err(|e| TickError::Write(e, report))?;
             // Sent: drop the queue entries, count everything.
-            self.head = (self.head + from_queue) % self.capacity;
+            self.head = self.slot(from_queue);
             self.len -= from_queue;
             report.frames += 1;
             report.bytes += n;
@@ -390,8 +503,8 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
 }
 
 impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameEncoder<D, QB, N> {
-    /// Quantize the voxel into the queue now; refuse when the queue is full. A non-finite voxel is counted
-    /// as invalid and dropped (the map must not keep retrying it).
+    /// Quantize the voxel into the queue now; refuse when the queue is full (or there is no session). A
+    /// non-finite voxel is counted as invalid and dropped (the map must not keep retrying it).
     fn evict(&mut self, voxel: Evicted<'_, D>) -> Result<(), SinkFull> {
         if !voxel.stats.is_finite() || !(voxel.stats.lambda > 0.0) {
             self.stats.invalid = self.stats.invalid.saturating_add(1);
@@ -401,16 +514,18 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
             self.stats.refused = self.stats.refused.saturating_add(1);
             return Err(SinkFull);
         }
-        let at = ((self.head + self.len) % self.capacity) * self.entry_len;
-        let e = &mut self.queue[at..at + self.entry_len];
-        let k = voxel.key.as_array();
-        e[0..4].copy_from_slice(&k[0].to_le_bytes());
-        e[4..8].copy_from_slice(&k[1].to_le_bytes());
-        e[8..12].copy_from_slice(&k[2].to_le_bytes());
-        e[12..16].copy_from_slice(&voxel.residency.to_le_bytes());
-        e[16..20].copy_from_slice(&voxel.stats.lambda.to_le_bytes());
-        if encode_codes(self.config.codec, voxel.stats, &mut e[ENTRY_HEAD..]).is_err() {
-            // Cannot happen: the codec was validated for D and the entry sized for it.
+        let bytes = self.slot_bytes(self.slot(self.len));
+        let codec = self.config.codec;
+        let written = self
+            .queue
+            .get_mut(bytes)
+            .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
+            .map(|(head, codes)| {
+                *head = entry_head(voxel.key, voxel.residency, voxel.stats.lambda);
+                encode_codes(codec, voxel.stats, codes)
+            });
+        if !matches!(written, Some(Ok(_))) {
+            // Cannot happen: the codec was validated for D and the queue sized for whole entries.
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
         }
@@ -662,7 +777,7 @@ impl SeqTracker {
 mod tests {
     use super::*;
     use crate::config::MapConfig;
-    use crate::wire::{parse_body, SummaryCodec};
+    use crate::wire::parse_body;
 
     type Enc = FrameEncoder<8, 1024, 256>;
 
@@ -782,6 +897,56 @@ mod tests {
             "{r:?}"
         );
         assert!(r.bytes <= budget);
+    }
+
+    #[test]
+    fn an_empty_encoder_refuses_and_configure_starts_afresh() {
+        let buf = || Buf {
+            data: [0; 8192],
+            len: 0,
+        };
+        let s = voxel(3);
+        let mut enc = Enc::EMPTY;
+        assert!(!enc.is_configured());
+        assert_eq!(
+            enc.evict(live(VoxelKey::new(1, 2, 3), &s, 7)),
+            Err(SinkFull)
+        );
+        let mut out = buf();
+        let r = enc.tick(&mut out, 10_000, core::iter::empty()).unwrap();
+        assert_eq!((r.frames, out.len), (0, 0));
+        assert_eq!(enc.send_header(&mut out), Ok(0));
+        assert_eq!(enc.send_stats(&mut out), Ok(0));
+        assert_eq!(out.len, 0);
+        // A used encoder reconfigured in place writes exactly what a new one writes.
+        let run = |enc: &mut Enc| {
+            let mut out = buf();
+            for i in 0..5 {
+                enc.evict(live(VoxelKey::new(i, -i, 2 * i), &s, i as u32))
+                    .unwrap();
+            }
+            enc.tick(&mut out, 10_000, core::iter::empty()).unwrap();
+            enc.send_stats(&mut out).unwrap();
+            out
+        };
+        let fresh = run(&mut Enc::new(config(), EncoderSettings::new(1, 2)).unwrap());
+        let mut reused = Enc::new(config(), EncoderSettings::new(9, 9)).unwrap();
+        run(&mut reused);
+        reused.evict(live(VoxelKey::new(9, 9, 9), &s, 99)).unwrap();
+        reused
+            .configure(config(), EncoderSettings::new(1, 2))
+            .unwrap();
+        assert_eq!((reused.queued(), reused.next_seq()), (0, 0));
+        let again = run(&mut reused);
+        assert_eq!(fresh.data[..fresh.len], again.data[..again.len]);
+        // A configuration that does not fit leaves it without a session.
+        let bad = SessionConfig { dim: 9, ..config() };
+        assert!(reused.configure(bad, EncoderSettings::new(1, 2)).is_err());
+        assert!(!reused.is_configured());
+        assert_eq!(
+            reused.evict(live(VoxelKey::new(1, 2, 3), &s, 7)),
+            Err(SinkFull)
+        );
     }
 
     #[test]

@@ -606,8 +606,9 @@ pub struct RunReport {
 /// (see [`Scenario::configure`]): integrate every frame (the map's work bracketed by `probe`), after each
 /// frame let `encoder` spend the scenario's byte budget on `w`, and at the end flush the map and send
 /// everything queued plus a final link-statistics frame. `on_frame` sees each frame's report (the firmware
-/// logs it and marks the end of the frame for the instruction counter). `encoder` must be fresh, built from
-/// [`Scenario::session_config`] and [`Scenario::encoder_settings`].
+/// logs it and marks the end of the frame for the instruction counter). `encoder` must have a fresh session
+/// from [`Scenario::session_config`] and [`Scenario::encoder_settings`] ([`FrameEncoder::configure`], in
+/// place, or [`FrameEncoder::new`]).
 pub fn run<
     const D: usize,
     const CAP: usize,

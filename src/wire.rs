@@ -244,6 +244,20 @@ pub struct LinkStats {
     pub queue_peak: u32,
 }
 
+impl LinkStats {
+    /// All counters zero (the same as `default()`, usable in `const` context).
+    pub const ZERO: Self = Self {
+        frames_sent: 0,
+        evicted_sent: 0,
+        live_sent: 0,
+        refused: 0,
+        invalid: 0,
+        write_errors: 0,
+        bytes_sent: 0,
+        queue_peak: 0,
+    };
+}
+
 /// Summaries packed as the format says ([`encode_summary`]); `count` of them, nothing after.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct VoxelBatch<'a> {

@@ -91,17 +91,18 @@ fn twin() -> Twin {
     let mut buf = vec![0u8; 8 << 20];
     let capacity = buf.len();
     let mut out: &mut [u8] = &mut buf[..];
+    // One encoder for all scenarios, reconfigured in place as the firmware does with its static.
+    let mut encoder: Box<Encoder> = Box::new(Encoder::EMPTY);
     let mut reports = Vec::new();
     let mut truth = Vec::new();
     for scenario in &SELF_TEST {
         scenario.configure(&mut map).unwrap();
-        let mut encoder = Box::new(
-            Encoder::new(
+        encoder
+            .configure(
                 scenario.session_config(D).unwrap(),
                 scenario.encoder_settings(),
             )
-            .unwrap(),
-        );
+            .unwrap();
         let r = synth::run(
             scenario,
             &mut map,

@@ -15,7 +15,6 @@
 
 mod vl53l5cx;
 
-use core::mem::MaybeUninit;
 use latentbki::frame::{EncoderSettings, FrameEncoder};
 use latentbki::local_map::LocalMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
@@ -33,7 +32,8 @@ type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
 type Encoder = FrameEncoder<D, 4096, 512>;
 
 static MAP: ConstStaticCell<Map> = ConstStaticCell::new(Map::EMPTY);
-static ENCODER: ConstStaticCell<MaybeUninit<Encoder>> = ConstStaticCell::new(MaybeUninit::uninit());
+/// The encoder (queue and frame buffers, ≈ 5 KiB) in `.bss` too, configured in place (never on the stack).
+static ENCODER: ConstStaticCell<Encoder> = ConstStaticCell::new(Encoder::EMPTY);
 
 /// The HAL's UART speaks embedded-io 0.6; the core's encoder writes through embedded-io 0.7.
 struct Uart<W>(W);
@@ -79,10 +79,13 @@ fn main() -> ! {
         halt()
     }
     let session = SessionConfig::new(&config, D, SummaryCodec::DEFAULT, 0);
-    let Ok(encoder) = Encoder::new(session, EncoderSettings::new(1, 1)) else {
+    let encoder = ENCODER.take();
+    if encoder
+        .configure(session, EncoderSettings::new(1, 1))
+        .is_err()
+    {
         halt()
-    };
-    let encoder = ENCODER.take().write(encoder);
+    }
 
     // No firmware blob here (see the module doc): keep checking the sensor until one is flashed with it.
     while tof.init(&[]).is_err() {
