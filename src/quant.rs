@@ -64,11 +64,6 @@ impl Dither {
         self.0 = x;
         x
     }
-    /// Four independent 8-bit dithers from one step.
-    #[inline]
-    fn bytes(&mut self) -> [u8; 4] {
-        self.next().to_le_bytes()
-    }
 }
 
 /// A voxel's posterior in compact form. `P` must be [`packed_len`]`(D)`.
@@ -79,6 +74,20 @@ pub struct QuantVoxel<const D: usize, const P: usize> {
     mu_scale: f16,
     psi_base: u16,
     codes: [u8; P],
+}
+
+/// Largest `bits & 0x7FFF_FFFF` over the values (the magnitude of the largest |v| for finite values), at
+/// most the bits of f32::MAX.
+#[inline]
+fn max_magnitude_bits(values: &[f32]) -> u32 {
+    let mut m = 0u32;
+    for &v in values {
+        let b = v.to_bits() & 0x7FFF_FFFF;
+        if b > m {
+            m = b;
+        }
+    }
+    m.min(f32::MAX.to_bits())
 }
 
 /// Pack `width`-bit codes, 8 at a time into `width` bytes (independent shifts, no carried state).
@@ -114,14 +123,15 @@ fn unpack(data: &[u8], width: u32, codes: &mut [u8]) {
 }
 
 /// The minifloat key of a positive finite f32: exponent and top mantissa bits, monotone in the value.
-/// `dither` (0..=255) is a fraction of one code step; 0 truncates.
+/// `dither` (0..=255) is a fraction of one code step; 0 truncates. Zero, negative values (sign bit set,
+/// negative as i32) and −0 give key 0.
 #[inline]
 fn psi_key(psi: f32, dither: u8) -> u32 {
-    let bits = if psi > 0.0 { psi.to_bits() } else { 0 };
+    let bits = psi.to_bits();
+    let bits = if (bits as i32) > 0 { bits } else { 0 };
     // Adding a uniform value below one step before truncating is unbiased stochastic rounding (to 1/256
-    // of a step).
-    bits.saturating_add((u32::from(dither) << (PSI_SHIFT - 8)) + (1 << (PSI_SHIFT - 9)))
-        >> PSI_SHIFT
+    // of a step). bits ≤ 0x7FFF_FFFF, so the sum cannot overflow.
+    (bits + (u32::from(dither) << (PSI_SHIFT - 8)) + (1 << (PSI_SHIFT - 9))) >> PSI_SHIFT
 }
 
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {
@@ -148,14 +158,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// shrinks below a quarter of it, and a new scale gets 25 % headroom.
     pub fn reencode(&self, stats: &VoxelStats<D>, dither: &mut Dither) -> Self {
         let () = Self::CHECK;
-        // Plain comparisons, not f32::max: inputs are finite, and on a Cortex-M4 `max` is an `fmaxf` call.
-        let mut max_abs = 0.0f32;
-        for &v in &stats.mean {
-            let a = if v < 0.0 { -v } else { v };
-            if a > max_abs {
-                max_abs = a;
-            }
-        }
+        // Maxima on the bit patterns: for finite floats |a| < |b| ⟺ (bits & 0x7FFF_FFFF) orders the same as
+        // integers, and on a Cortex-M4 an integer compare-and-select is 4 instructions where a float one is 6
+        // (vcmp + vmrs + it + vmov) and `f32::max` is an `fmaxf` call. Clamped to f32::MAX: non-finite
+        // inputs (never passed by callers) cannot make a non-finite scale.
+        let max_abs = f32::from_bits(max_magnitude_bits(&stats.mean));
         let qmax = MU_QMAX as f32;
         let prev = self.mu_scale.to_f32();
         let keep = prev > 0.0 && max_abs <= prev * qmax && max_abs * 4.0 >= prev * qmax;
@@ -172,30 +179,51 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let scale = mu_scale.to_f32();
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
 
-        let mut psi_max = 0.0f32;
+        // Ψ ≥ 0, and a negative value (sign bit set) must not count: as i32 it is negative.
+        let mut psi_max_bits = 0i32;
         for &v in &stats.psi {
-            if v > psi_max {
-                psi_max = v;
+            let b = v.to_bits() as i32;
+            if b > psi_max_bits {
+                psi_max_bits = b;
             }
         }
-        let top = (psi_max.to_bits() >> PSI_SHIFT) + 1;
+        let psi_max_bits = (psi_max_bits as u32).min(f32::MAX.to_bits());
+        let top = (psi_max_bits >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
         // |μᵢ · inv| ≤ q_max, so μᵢ · inv + u + OFFSET is positive and truncation is floor: no floorf call.
         const OFFSET: f32 = (2 * MU_QMAX + 2) as f32;
         const U8: f32 = 1.0 / 256.0;
+        // Clamps written as signed clamps to a power-of-two range so a Cortex-M4 does each in one `ssat` /
+        // `usat`. μ: −32 cannot occur (|μᵢ · inv| ≤ q_max and u ≥ 1/512), and would decode fine.
+        let mu_code = |v: f32, dither: u32| {
+            let u = (f32::from(dither as u8) + 0.5) * U8;
+            let q = (v * inv + u + OFFSET) as i32 - OFFSET as i32;
+            q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
+        };
+        let base = i32::from(psi_base);
+        let psi_code = |v: f32, dither: u32| {
+            (psi_key(v, dither as u8) as i32 - base).clamp(0, PSI_CODE_MAX as i32) as u8
+        };
+        // One dither step serves two dimensions: bytes 0 and 1 for μ and Ψ of the first, 2 and 3 of the second.
         let mut mu_codes = [0u8; D];
         let mut psi_codes = [0u8; D];
-        let mut dither_bytes = [0u8; 4];
-        for i in 0..D {
-            if i % 2 == 0 {
-                dither_bytes = dither.bytes();
-            }
-            let u = (f32::from(dither_bytes[i % 2 * 2]) + 0.5) * U8;
-            let q = (stats.mean[i] * inv + u + OFFSET) as i32 - OFFSET as i32;
-            mu_codes[i] = q.clamp(-MU_QMAX, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8;
-            let key = psi_key(stats.psi[i], dither_bytes[i % 2 * 2 + 1]);
-            psi_codes[i] = key.saturating_sub(u32::from(psi_base)).min(PSI_CODE_MAX) as u8;
+        let pairs = stats.mean.chunks_exact(2).zip(stats.psi.chunks_exact(2));
+        for (((m, p), mc), pc) in pairs
+            .zip(mu_codes.chunks_exact_mut(2))
+            .zip(psi_codes.chunks_exact_mut(2))
+        {
+            let d = dither.next();
+            mc[0] = mu_code(m[0], d);
+            pc[0] = psi_code(p[0], d >> 8);
+            mc[1] = mu_code(m[1], d >> 16);
+            pc[1] = psi_code(p[1], d >> 24);
+        }
+        if D % 2 == 1 {
+            let d = dither.next();
+            let i = D - 1;
+            mu_codes[i] = mu_code(stats.mean[i], d);
+            psi_codes[i] = psi_code(stats.psi[i], d >> 8);
         }
         let mut codes = [0u8; P];
         let (mu_part, psi_part) = codes.split_at_mut(section_len(D, MU_BITS));
