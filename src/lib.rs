@@ -28,6 +28,7 @@ pub mod inference;
 pub mod kernel;
 pub mod key;
 pub mod local_map;
+pub mod log2;
 pub mod quant;
 pub mod sink;
 pub mod stats;
