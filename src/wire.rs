@@ -17,6 +17,7 @@ use crate::config::{ConfigError, KernelMode, MapConfig, Prior};
 use crate::decode::Pca;
 use crate::key::VoxelKey;
 use crate::stats::VoxelStats;
+use core::num::NonZeroUsize;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.
@@ -401,29 +402,64 @@ const fn unzigzag(v: u32) -> i32 {
     ((v >> 1) as i32) ^ -((v & 1) as i32)
 }
 
-/// In-place orthonormal Walsh–Hadamard transform (its own inverse) when D is a power of two; identity
-/// otherwise.
-fn hadamard<const D: usize>(v: &mut [f32; D]) {
-    if D < 2 || !D.is_power_of_two() {
-        return;
-    }
-    let mut h = 1;
-    while h < D {
-        let mut i = 0;
-        while i < D {
-            for j in i..i + h {
-                let (a, b) = (v[j], v[j + h]);
-                v[j] = a + b;
-                v[j + h] = a - b;
-            }
-            i += 2 * h;
+/// One stage of the Walsh–Hadamard transform in constant geometry: pairs (2j, 2j + 1) of `from` become
+/// their sum at j and their difference at j + n/2 of `to` (both of length n). log₂ n stages are the
+/// transform in Sylvester order, each output the same tree of sums and differences as the in-place
+/// butterflies (so the same bits), but every stage is one short loop instead of log₂ n nested ones.
+#[inline(never)]
+fn hadamard_stage(from: &[f32], to: &mut [f32]) {
+    let (from, to) = core::hint::black_box((from, to));
+    let (sums, diffs) = to.split_at_mut(to.len() / 2);
+    for ((pair, s), d) in from.chunks_exact(2).zip(sums).zip(diffs) {
+        if let [x, y] = *pair {
+            *s = x + y;
+            *d = x - y;
         }
-        h *= 2;
     }
-    let norm = 1.0 / libm::sqrtf(D as f32);
-    for x in v.iter_mut() {
-        *x *= norm;
+}
+
+/// Orthonormal Walsh–Hadamard transform (its own inverse) when D is a power of two; identity otherwise.
+/// Returns the largest |entry| of the result (NaN entries ignored; 0 for none).
+fn hadamard<const D: usize>(v: &mut [f32; D]) -> f32 {
+    if D < 2 || !D.is_power_of_two() {
+        return scale_all(v, 1.0);
     }
+    let mut tmp = [0.0f32; D];
+    let stages = D.trailing_zeros();
+    for _ in 0..stages / 2 {
+        hadamard_stage(v, &mut tmp);
+        hadamard_stage(&tmp, v);
+    }
+    if stages % 2 == 1 {
+        hadamard_stage(v, &mut tmp);
+        *v = tmp;
+    }
+    scale_all(v, 1.0 / libm::sqrtf(D as f32))
+}
+
+// The summary codec runs once per voxel sent, not per point: its loops over D stay loops instead of being
+// unrolled D times into flash (≈ 6 KB at D = 64). They take slices, are not inlined, and hide the length
+// (a constant everywhere, which the optimizer would propagate) behind `black_box`; only code size and a
+// few instructions per voxel depend on that, never a result.
+
+/// `v *= k`, element-wise; returns the largest |v| after it (NaN entries ignored; 0 for none).
+#[inline(never)]
+fn scale_all(v: &mut [f32], k: f32) -> f32 {
+    let v = core::hint::black_box(v);
+    let mut peak = 0.0f32;
+    for x in v {
+        *x *= k;
+        peak = peak.max(libm::fabsf(*x));
+    }
+    peak
+}
+
+/// The largest v, at least 0 (NaN entries ignored), as `fold(0, max)`.
+#[inline(never)]
+fn max_or_zero(values: &[f32]) -> f32 {
+    core::hint::black_box(values)
+        .iter()
+        .fold(0.0f32, |a, &v| a.max(v))
 }
 
 /// log₂ steps per code of the μ scale and of Ψ's largest entry.
@@ -450,7 +486,7 @@ fn log_value(code: u8, offset: f32) -> f32 {
     }
 }
 
-fn block_range(dim: usize, blocks: usize, b: usize) -> core::ops::Range<usize> {
+fn block_range(dim: usize, blocks: NonZeroUsize, b: usize) -> core::ops::Range<usize> {
     (b * dim / blocks)..((b + 1) * dim / blocks)
 }
 
@@ -461,42 +497,60 @@ pub fn encode_codes<const D: usize>(
     out: &mut [u8],
 ) -> Result<usize, WireError> {
     codec.validate(D)?;
+    let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
     let len = codec.code_len(D);
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
+    let bits = u32::from(codec.mean_bits);
+    let (scale_byte, rest) = out.split_first_mut().ok_or(WireError::BufferFull)?;
+    let (mean_bytes, psi_bytes) = rest
+        .split_at_mut_checked((D * bits as usize).div_ceil(8))
+        .ok_or(WireError::BufferFull)?;
+    let [max_byte, geo_byte, block_bytes @ ..] = psi_bytes else {
+        return Err(WireError::BufferFull);
+    };
     // μ: rotate, scale, mid-rise uniform codes, packed LSB first.
     let mut t = stats.mean;
-    hadamard(&mut t);
-    let peak = t.iter().fold(0.0f32, |a, &v| a.max(libm::fabsf(v)));
-    let bits = u32::from(codec.mean_bits);
+    let peak = hadamard(&mut t);
     let levels = 1u32 << bits;
     let scale_code = if peak > 0.0 && peak.is_finite() {
         log_code_up(peak, SCALE_OFFSET)
     } else {
         0
     };
-    out[0] = scale_code;
+    *scale_byte = scale_code;
     let scale = log_value(scale_code, SCALE_OFFSET);
     if scale > 0.0 {
         let half = (levels / 2) as f32;
-        let mut bit = 8usize; // bit position in `out`
+        let top = levels - 1;
+        // Bits not yet stored (LSB first) and how many.
+        let (mut pending, mut n) = (0u32, 0u32);
+        let mut bytes = mean_bytes.iter_mut();
         for &v in &t {
-            let q = libm::floorf((v / scale + 1.0) * half).clamp(0.0, (levels - 1) as f32) as u32;
-            for k in 0..bits as usize {
-                if q >> k & 1 == 1 {
-                    out[(bit + k) / 8] |= 1 << ((bit + k) % 8);
+            // The float-to-int cast truncates and saturates (NaN → 0), so here it is floor clamped at 0:
+            // a component a rounding step below −scale still gets code 0.
+            let q = (((v / scale + 1.0) * half) as u32).min(top);
+            pending |= q << n;
+            n += bits;
+            if n >= 8 {
+                if let Some(b) = bytes.next() {
+                    *b = pending as u8;
                 }
+                pending >>= 8;
+                n -= 8;
             }
-            bit += bits as usize;
+        }
+        if let Some(b) = bytes.next() {
+            *b = pending as u8;
         }
     }
     // Ψ: largest entry (rounded up), geometric mean and block means relative to it.
-    let psi_at = 1 + (D * bits as usize).div_ceil(8);
-    let psi_max = stats.psi.iter().fold(0.0f32, |a, &v| a.max(v));
+    let psi_max = max_or_zero(&stats.psi);
     if psi_max > 0.0 && psi_max.is_finite() {
         let max_code = log_code_up(psi_max, PSI_OFFSET);
-        out[psi_at] = max_code;
+        *max_byte = max_code;
         let sent_max = log_value(max_code, PSI_OFFSET);
+        let log_sent_max = libm::log2f(sent_max);
         // Geometric mean (entries ≤ 0 count as the smallest code's value).
         let floor = sent_max * libm::exp2f(-255.0 / GEO_STEPS_PER_OCTAVE);
         let mean_log = stats
@@ -505,20 +559,22 @@ pub fn encode_codes<const D: usize>(
             .map(|&p| libm::log2f(p.max(floor)))
             .sum::<f32>()
             / D as f32;
-        let geo = libm::roundf((libm::log2f(sent_max) - mean_log) * GEO_STEPS_PER_OCTAVE);
-        out[psi_at + 1] = geo.clamp(0.0, 255.0) as u8;
-        let blocks = usize::from(codec.psi_blocks);
-        for b in 0..blocks {
+        let geo = libm::roundf((log_sent_max - mean_log) * GEO_STEPS_PER_OCTAVE);
+        *geo_byte = geo.clamp(0.0, 255.0) as u8;
+        for b in 0..blocks.get() {
             let r = block_range(D, blocks, b);
             let n = r.len().max(1) as f32;
-            let mean = stats.psi[r].iter().map(|p| p.max(0.0)).sum::<f32>() / n;
+            let block = stats.psi.get(r).unwrap_or_default();
+            let mean = block.iter().map(|p| p.max(0.0)).sum::<f32>() / n;
             let c = if mean > 0.0 {
-                libm::roundf((libm::log2f(sent_max) - libm::log2f(mean)) * BLOCK_STEPS_PER_OCTAVE)
+                libm::roundf((log_sent_max - libm::log2f(mean)) * BLOCK_STEPS_PER_OCTAVE)
                     .clamp(0.0, 15.0) as u8
             } else {
                 15
             };
-            out[psi_at + 2 + b / 2] |= c << (4 * (b % 2));
+            if let Some(byte) = block_bytes.get_mut(b / 2) {
+                *byte |= c << (4 * (b % 2));
+            }
         }
     }
     Ok(len)
@@ -554,8 +610,8 @@ pub fn decode_codes<const D: usize>(
     let psi_max = log_value(bytes[psi_at], PSI_OFFSET);
     let psi_geo = psi_max * libm::exp2f(-f32::from(bytes[psi_at + 1]) / GEO_STEPS_PER_OCTAVE);
     let mut psi = [0.0f32; D];
-    let blocks = usize::from(codec.psi_blocks);
-    for b in 0..blocks {
+    let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
+    for b in 0..blocks.get() {
         let c = bytes[psi_at + 2 + b / 2] >> (4 * (b % 2)) & 0x0f;
         let v = psi_max * libm::exp2f(-f32::from(c) / BLOCK_STEPS_PER_OCTAVE);
         for p in &mut psi[block_range(D, blocks, b)] {
@@ -872,7 +928,7 @@ mod tests {
         encode_codes(codec, &s, &mut codes).unwrap();
         let (d, _, geo) = decode_codes::<64>(codec, s.lambda, &codes).unwrap();
         for b in 0..8 {
-            let r = block_range(64, 8, b);
+            let r = block_range(64, NonZeroUsize::new(8).unwrap(), b);
             let exact: f32 = s.psi[r.clone()].iter().sum();
             let got: f32 = d.psi[r].iter().sum();
             // Half an octave step: within 2^(±1/4).
