@@ -16,8 +16,9 @@
 //! - **Batches** are grouped by source voxel in a small f32 scratch (`G` groups, [`GROUPS`] by default:
 //!   ~17 KiB at D = 64 on a device; a host can afford hundreds, and each flush re-encodes its targets, so a
 //!   bigger scratch re-encodes shared neighbours less often); when it fills, the
-//!   groups are applied target by target: each touched voxel is decoded once, absorbs every group in reach
-//!   (the paper's batch update, in Chan's sequential form) and is re-encoded once.
+//!   groups are applied target by target: the raw sums ([`BatchSums`]) of every group in reach, through
+//!   its kernel weight, form the target's batch (k̄, ȳ, S̄); the voxel is decoded once, takes the paper's
+//!   batch update once, and is re-encoded once.
 
 use crate::batch::{locate, Rejection, RejectionCounts};
 use crate::config::{ConfigError, MapConfig};
@@ -25,7 +26,7 @@ use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
 use crate::quant::{Dither, QuantVoxel};
 use crate::sink::{Evicted, EvictionSink};
-use crate::stats::VoxelStats;
+use crate::stats::{BatchSums, VoxelStats};
 use half::f16;
 use nalgebra::Isometry3;
 
@@ -74,7 +75,7 @@ enum NoSlot {
 struct Group<const D: usize> {
     key: VoxelKey,
     cell: u16,
-    moments: VoxelStats<D>,
+    sums: BatchSums<D>,
 }
 
 /// What one call changed, for logs and tests.
@@ -122,6 +123,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const G: u
     /// The group the previous point joined.
     last_group: usize,
     scratch: VoxelStats<D>,
+    /// The raw sums of the batch a target is absorbing.
+    batch: BatchSums<D>,
     centre: VoxelKey,
     radius: i32,
     epoch: u8,
@@ -178,6 +181,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         groups: heapless::Vec::new(),
         last_group: 0,
         scratch: VoxelStats::EMPTY,
+        batch: BatchSums::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
         radius: 0,
         epoch: 0,
@@ -568,7 +572,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 let group = Group {
                     key,
                     cell,
-                    moments: VoxelStats::EMPTY,
+                    sums: BatchSums::EMPTY,
                 };
                 // Cannot fail: the scratch was just emptied if it was full.
                 let _ = self.groups.push(group);
@@ -576,7 +580,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             }
         };
         self.last_group = g;
-        self.groups[g].moments.absorb_point(1.0, feature);
+        self.groups[g].sums.add_point(feature);
         self.counters.points = self.counters.points.saturating_add(1);
         Ok(())
     }
@@ -633,7 +637,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 Ok(()) => placed += 1,
                 Err(NoSlot::Pinned) if placed > 0 => break,
                 Err(_) => {
-                    let n = self.groups[placed].moments.lambda as u32;
+                    let n = self.groups[placed].sums.weight as u32;
                     self.rejections.no_room = self.rejections.no_room.saturating_add(n);
                     self.counters.points = self.counters.points.saturating_sub(n);
                     self.groups.remove(placed);
@@ -660,8 +664,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                     continue; // visited by an earlier group of this round
                 }
                 self.unpin(s);
-                self.slots[s].voxel.decode_into(&mut self.scratch);
-                let mut mass = 0.0f32;
+                // The target's batch: every placed group in reach, through its kernel weight.
+                let mut first = true;
                 for grp in &self.groups[g..placed] {
                     let w = self.lut.weight_at(
                         grp.cell,
@@ -670,10 +674,20 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                         t.z - grp.key.z,
                     );
                     if w > 0.0 {
-                        self.scratch.absorb_scaled(w, &grp.moments);
-                        mass += w * grp.moments.lambda;
+                        if first {
+                            self.batch.set_scaled(w, &grp.sums);
+                            first = false;
+                        } else {
+                            self.batch.add_scaled(w, &grp.sums);
+                        }
                     }
                 }
+                if first {
+                    continue; // unreachable: group g reaches t
+                }
+                let mass = self.batch.weight;
+                self.slots[s].voxel.decode_into(&mut self.scratch);
+                self.scratch.absorb_sums(&self.batch);
                 let slot = &mut self.slots[s];
                 slot.voxel = slot.voxel.reencode(&self.scratch, &mut self.dither);
                 slot.unsent = f16::from_f32(slot.unsent.to_f32() + mass);

@@ -54,15 +54,51 @@ impl<const D: usize> VoxelStats<D> {
         if !(k_bar > 0.0) {
             return;
         }
-        let lambda_new = self.lambda + k_bar;
-        let gain = k_bar / lambda_new; // k̄ / λᵗ
-        let cross = self.lambda * gain; // λᵗ⁻¹ k̄ / λᵗ
+        let (gain, cross) = self.gains(k_bar);
         for i in 0..D {
-            let diff = batch.mean[i] - self.mean[i]; // ȳ − μᵗ⁻¹
-            self.mean[i] += gain * diff;
-            self.psi[i] += k * batch.psi[i] + cross * diff * diff;
+            update_dim(
+                &mut self.mean[i],
+                &mut self.psi[i],
+                gain,
+                cross,
+                batch.mean[i],
+                k * batch.psi[i],
+            );
         }
-        self.lambda = lambda_new;
+        self.lambda += k_bar;
+    }
+
+    /// The update's two coefficients for a batch of weight k̄: (k̄ / λᵗ, λᵗ⁻¹ k̄ / λᵗ).
+    #[inline]
+    fn gains(&self, k_bar: f32) -> (f32, f32) {
+        let gain = k_bar / (self.lambda + k_bar);
+        (gain, self.lambda * gain)
+    }
+
+    /// Combine with a batch given by its raw sums (the paper's k̄, ȳ = Σky / k̄, S̄ = Σky² − k̄ȳ²).
+    #[inline]
+    pub fn absorb_sums(&mut self, batch: &BatchSums<D>) {
+        let k_bar = batch.weight;
+        if !(k_bar > 0.0) {
+            return;
+        }
+        let (gain, cross) = self.gains(k_bar);
+        let inv = 1.0 / k_bar;
+        for i in 0..D {
+            let y_bar = batch.sum[i] * inv;
+            // Cancellation can leave a tiny negative scatter; the true one is ≥ 0.
+            let s_bar = batch.sum_sq[i] - k_bar * y_bar * y_bar;
+            let s_bar = if s_bar > 0.0 { s_bar } else { 0.0 };
+            update_dim(
+                &mut self.mean[i],
+                &mut self.psi[i],
+                gain,
+                cross,
+                y_bar,
+                s_bar,
+            );
+        }
+        self.lambda += k_bar;
     }
 
     /// Combine with a batch's moments (the paper's update).
@@ -77,15 +113,11 @@ impl<const D: usize> VoxelStats<D> {
         if !(k > 0.0) {
             return;
         }
-        let lambda_new = self.lambda + k;
-        let gain = k / lambda_new;
-        let cross = self.lambda * gain;
+        let (gain, cross) = self.gains(k);
         for i in 0..D {
-            let diff = y[i] - self.mean[i];
-            self.mean[i] += gain * diff;
-            self.psi[i] += cross * diff * diff;
+            update_dim(&mut self.mean[i], &mut self.psi[i], gain, cross, y[i], 0.0);
         }
-        self.lambda = lambda_new;
+        self.lambda += k;
     }
 
     /// The data part of a posterior: `self = prior ⊕ data`, solved for `data`.
@@ -122,6 +154,81 @@ impl<const D: usize> VoxelStats<D> {
         self.lambda.is_finite()
             && self.mean.iter().all(|v| v.is_finite())
             && self.psi.iter().all(|v| v.is_finite())
+    }
+}
+
+/// One dimension of the update (§III-B), the single place it is written:
+/// μ += (k̄/λᵗ)(ȳ − μ), Ψ += S̄ + (λᵗ⁻¹k̄/λᵗ)(ȳ − μ)², with `gain` = k̄/λᵗ and `cross` = λᵗ⁻¹k̄/λᵗ.
+#[inline(always)]
+fn update_dim(mean: &mut f32, psi: &mut f32, gain: f32, cross: f32, y_bar: f32, s_bar: f32) {
+    let diff = y_bar - *mean; // ȳ − μᵗ⁻¹
+    *mean += gain * diff;
+    *psi += s_bar + cross * diff * diff;
+}
+
+/// Kernel-weighted raw sums of a batch of points: k̄ = Σk, Σk·y and Σk·y² per dimension.
+///
+/// Why raw sums next to [`VoxelStats`]: the on-device map accumulates every point of a voxel into its group
+/// and every group into each neighbour it reaches. In raw form both are plain multiply-adds (2 per
+/// dimension for a point, where the streaming update needs a difference, two multiply-adds and a
+/// division per point), and a neighbour's batch (k̄, ȳ, S̄) is formed once and applied with one update —
+/// the paper's batch form. The price is cancellation in S̄ = Σky² − k̄ȳ², a relative error of about
+/// ε · Σky² / S̄: for features whose spread within a voxel is 1 % of their size that is 10⁻⁴ relative
+/// at n = 1000, far below the map's 5-bit Ψ codes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BatchSums<const D: usize> {
+    /// k̄ = Σk (the point count for unit weights).
+    pub weight: f32,
+    /// Σk·y.
+    pub sum: [f32; D],
+    /// Σk·y², per dimension.
+    pub sum_sq: [f32; D],
+}
+
+impl<const D: usize> BatchSums<D> {
+    /// Sums of nothing.
+    pub const EMPTY: Self = Self {
+        weight: 0.0,
+        sum: [0.0; D],
+        sum_sq: [0.0; D],
+    };
+
+    /// Add one point of weight 1.
+    #[inline]
+    pub fn add_point(&mut self, y: &[f32; D]) {
+        self.weight += 1.0;
+        for ((s, q), &v) in self.sum.iter_mut().zip(&mut self.sum_sq).zip(y) {
+            *s += v;
+            *q += v * v;
+        }
+    }
+
+    /// Become another batch seen through kernel weight `k` (no clearing pass before the first
+    /// [`Self::add_scaled`]).
+    #[inline]
+    pub fn set_scaled(&mut self, k: f32, other: &Self) {
+        self.weight = k * other.weight;
+        for i in 0..D {
+            self.sum[i] = k * other.sum[i];
+            self.sum_sq[i] = k * other.sum_sq[i];
+        }
+    }
+
+    /// Add another batch seen through kernel weight `k` (every weight multiplied by `k`).
+    #[inline]
+    pub fn add_scaled(&mut self, k: f32, other: &Self) {
+        self.weight += k * other.weight;
+        for i in 0..D {
+            self.sum[i] += k * other.sum[i];
+            self.sum_sq[i] += k * other.sum_sq[i];
+        }
+    }
+
+    /// The batch moments in [`VoxelStats`] form: λ = k̄, μ = ȳ, Ψ = S̄.
+    pub fn moments(&self) -> VoxelStats<D> {
+        let mut m = VoxelStats::EMPTY;
+        m.absorb_sums(self);
+        m
     }
 }
 
