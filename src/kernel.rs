@@ -17,8 +17,8 @@ pub fn sparse_kernel(distance: f32, kernel_length: f32) -> f32 {
         return 0.0;
     }
     let r = libm::fabsf(distance) / kernel_length;
-    let a = 2.0 * PI * r;
-    let k = (2.0 + libm::cosf(a)) / 3.0 * (1.0 - r) + libm::sinf(a) / (2.0 * PI);
+    let (sin, cos) = crate::f32math::sin_cos(2.0 * PI * r);
+    let k = (2.0 + cos) / 3.0 * (1.0 - r) + sin / (2.0 * PI);
     k.clamp(0.0, 1.0)
 }
 

@@ -23,12 +23,12 @@
 pub mod batch;
 pub mod config;
 pub mod decode;
+pub mod f32math;
 pub mod frame;
 pub mod inference;
 pub mod kernel;
 pub mod key;
 pub mod local_map;
-pub mod log2;
 pub mod quant;
 pub mod sink;
 pub mod stats;

@@ -1,11 +1,33 @@
-//! Base-2 logarithms and powers in pure f32, for the log-encoded fields of the wire format.
+//! Elementary functions in pure f32 for the device path: sin/cos for the kernel table, and base-2 powers
+//! and logarithms for the log-encoded fields of the wire format.
 //!
-//! Why not `libm::log2f` / `libm::exp2f`: they are ports of musl, which computes in f64 — on a Cortex-M4F
-//! (single-precision FPU) every call becomes soft-float `__muldf3`/`__adddf3` routines, and the device
-//! path must not use f64. The wire needs little: powers 2^(n/s) at integer n for a few step counts s (a
-//! table lookup and an exponent), the smallest such power ≥ x (the same table, so "≥" holds exactly),
-//! and a log₂ accurate to ~1e-6 for the geometric mean of Ψ. Everything is plain f32 arithmetic, so host
-//! and device compute bit-identical codes.
+//! Why not `libm`'s `sinf`/`cosf`/`log2f`/`exp2f`: they are ports of musl, which evaluates in f64 — on a
+//! Cortex-M4F (single-precision FPU) every call becomes soft-float `__muldf3`/`__adddf3` routines, in
+//! flash and on the hot path, and the device path must not use f64. What the map needs is little: sin/cos
+//! of a bounded argument to 1e-6, powers 2^(n/s) at integer n for a few step counts s (a table and an
+//! exponent), the smallest such power ≥ x (the same table, so "≥" holds exactly), and a log₂ accurate
+//! to ~1e-6. All plain f32 arithmetic, so host and device compute bit-identical results.
+
+/// sin and cos of `x` (|x| ≤ 8π) in f32 arithmetic only: reduction to [−π/4, π/4] and Taylor
+/// polynomials, error < 1e-6.
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    use core::f32::consts::FRAC_PI_2;
+    // Cody–Waite reduction: π/2 = HI + LO with HI exact in 10 bits, so q · HI is exact for |q| < 2¹⁴ and
+    // the reduced argument keeps its precision.
+    const HI: f32 = 1.570_312_5;
+    const LO: f32 = 4.838_267_9e-4;
+    let q = libm::floorf(x * (1.0 / FRAC_PI_2) + 0.5);
+    let r = (x - q * HI) - q * LO;
+    let r2 = r * r;
+    let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0))));
+    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0))));
+    match (q as i32) & 3 {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
+}
 
 /// 2^(k/16) for k = 0..16, correctly rounded to f32. Coarser steps (8, 4, 2 per octave) use every
 /// second, fourth, eighth entry.
@@ -112,6 +134,20 @@ pub fn log2(x: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sin_cos_is_accurate() {
+        let mut worst = 0.0f64;
+        for i in -100_000..=100_000 {
+            let x = i as f32 * (8.0 * core::f32::consts::PI / 100_000.0);
+            let (s, c) = sin_cos(x);
+            let x = f64::from(x);
+            worst = worst
+                .max((f64::from(s) - libm::sin(x)).abs())
+                .max((f64::from(c) - libm::cos(x)).abs());
+        }
+        assert!(worst < 1e-6, "worst |error| {worst:e}");
+    }
 
     #[test]
     fn table_is_two_to_the_sixteenths() {
