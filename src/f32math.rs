@@ -15,7 +15,7 @@ pub fn sin_cos(x: f32) -> (f32, f32) {
     // Cody–Waite reduction: π/2 = HI + LO with HI exact in 10 bits, so q · HI is exact for |q| < 2¹⁴ and
     // the reduced argument keeps its precision.
     const HI: f32 = 1.570_312_5;
-    const LO: f32 = 4.838_267_9e-4;
+    const LO: f32 = 4.838_268e-4;
     let q = libm::floorf(x * (1.0 / FRAC_PI_2) + 0.5);
     let r = (x - q * HI) - q * LO;
     let r2 = r * r;
