@@ -12,6 +12,20 @@
 
 mod board;
 
+/// A line of the human-readable report on semihosting stdout. Not in the `panic-never` build: semihosting's
+/// formatted output can panic (a formatter error, its stdout handle's assertion), and that build is a
+/// link-time proof about the map and the encoder, not a run (the arguments are still type-checked there).
+#[cfg(not(feature = "panic-never"))]
+macro_rules! report {
+    ($($arg:tt)*) => { semihosting::println!($($arg)*) };
+}
+#[cfg(feature = "panic-never")]
+macro_rules! report {
+    ($($arg:tt)*) => {{
+        let _ = format_args!($($arg)*);
+    }};
+}
+
 use board::{exit, exit_code, Markers, Uart};
 use latentbki::frame::FrameEncoder;
 use latentbki::local_map::LocalMap;
@@ -44,9 +58,12 @@ static ENCODER: ConstStaticCell<Encoder> = ConstStaticCell::new(Encoder::EMPTY);
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    let map = MAP.take();
-    let chunk = CHUNK.take();
-    let encoder = ENCODER.take();
+    // `main` runs once, so each static is taken exactly once (`try_take`: no panic path).
+    let (Some(map), Some(chunk), Some(encoder)) =
+        (MAP.try_take(), CHUNK.try_take(), ENCODER.try_take())
+    else {
+        exit(exit_code::FAILED)
+    };
     let mut uart = Uart::uart0();
     for (s, scenario) in SELF_TEST.iter().enumerate() {
         if let Err(code) = run_scenario(s, scenario, map, chunk, encoder, &mut uart) {
@@ -56,14 +73,14 @@ fn main() -> ! {
     // Since the last repaint (before the last scenario's loop): that loop and the reports after it. With the
     // set-up and loop marks of every scenario, every stack byte the run used falls in some measured window.
     let tail_stack = board::stack::high_water_since_repaint();
-    semihosting::println!(
+    report!(
         "memory stack_size={} map_bytes={} bytes_per_voxel={} tail_stack_high_water={}",
         board::stack::size(),
         core::mem::size_of::<Map>(),
         Map::BYTES_PER_VOXEL,
         tail_stack
     );
-    semihosting::println!("done");
+    report!("done");
     exit(exit_code::SUCCESS)
 }
 
@@ -84,7 +101,7 @@ fn run_scenario(
     board::stack::repaint();
     let on_frame = |i: u32, f: &FrameReport, m: &Map| {
         Markers.report();
-        semihosting::println!(
+        report!(
             "frame s={} i={} f={} points={} integrated={} voxels={}",
             s,
             i,
@@ -109,7 +126,7 @@ fn run_scenario(
         r.points,
         r.link.frames_sent
     );
-    semihosting::println!(
+    report!(
         "scenario s={} f={} frames={} points={} integrated={} peak_voxels={} capacity={} evicted={} refused={} flushed={} no_room={} outside_window={} frames_sent={} bytes_sent={} evicted_sent={} invalid={}",
         s,
         scenario.filter_size,
@@ -128,7 +145,7 @@ fn run_scenario(
         r.link.evicted_sent,
         r.link.invalid
     );
-    semihosting::println!(
+    report!(
         "stack s={} setup_high_water={} loop_high_water={}",
         s,
         setup_stack,
