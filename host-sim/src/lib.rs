@@ -8,6 +8,7 @@ pub mod eval;
 pub mod link;
 pub mod npy_io;
 pub mod order;
+pub mod png_io;
 pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]

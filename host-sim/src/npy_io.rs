@@ -3,10 +3,15 @@
 //!
 //! A frame is an (N, 3+D) float32 array: xyz then the D-dimensional feature (the point layout of the
 //! authors' released code). Errors name the file and the expected shape.
+//!
+//! The format code is our own and small (the `.npy` format is a magic string, a Python-literal header
+//! and the raw little-endian data; `.npz` is a zip of `.npy` files): the crate reads and writes only
+//! 4-byte float and int arrays, and a general-purpose numpy crate pulled in a Python-literal parser and
+//! every zip codec (zstd and bzip2 in C), which was most of host-sim's cold build time.
 
 use latentbki::nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use latentbki::{VoxelKey, VoxelStats};
-use npyz::WriterBuilder;
+use std::io::{BufWriter, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 /// A problem with an input or output file.
@@ -75,31 +80,16 @@ pub fn read_frame(path: &Path) -> Result<Frame, IoError> {
         problem,
     };
     let bytes = std::fs::read(path).map_err(io_err(path))?;
-    let npy =
-        npyz::NpyFile::new(&bytes[..]).map_err(|e| bad(format!("not a valid .npy file ({e})")))?;
-    let shape = npy.shape().to_vec();
-    let dtype = npy.dtype();
+    let (header, body) =
+        parse_npy(&bytes).map_err(|e| bad(format!("not a valid .npy file ({e})")))?;
+    let shape = &header.shape;
     if shape.len() != 2 || shape[1] < 4 {
         return Err(bad(format!("found shape {shape:?}")));
     }
-    let is_f32 = matches!(&dtype, npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4);
-    if !is_f32 {
-        return Err(bad(format!("found dtype {}", dtype.descr())));
-    }
-    if npy.order() != npyz::Order::C {
-        return Err(bad("found a Fortran-ordered array".into()));
-    }
-    let (n, cols) = (shape[0] as usize, shape[1] as usize);
-    let data: Vec<f32> = npy
-        .into_vec()
-        .map_err(|e| bad(format!("truncated or unreadable data ({e})")))?;
-    if data.len() != n * cols {
-        return Err(bad(format!(
-            "holds {} values for shape {shape:?}",
-            data.len()
-        )));
-    }
+    let data: Vec<f32> = header.decode(body).map_err(bad)?;
+    let cols = shape[1] as usize;
     let dim = cols - 3;
+    let n = data.len() / cols;
     let mut positions = Vec::with_capacity(n);
     let mut features = Vec::with_capacity(n * dim);
     for row in data.chunks_exact(cols) {
@@ -120,20 +110,293 @@ pub fn write_frame(
     features: &[f32],
     dim: usize,
 ) -> Result<(), IoError> {
-    let mut flat = Vec::with_capacity(positions.len() * (3 + dim));
-    for (p, f) in positions.iter().zip(features.chunks_exact(dim)) {
-        flat.extend_from_slice(p);
-        flat.extend_from_slice(f);
-    }
     let file = std::fs::File::create(path).map_err(io_err(path))?;
-    let mut w = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[positions.len() as u64, (3 + dim) as u64])
-        .writer(std::io::BufWriter::new(file))
-        .begin_nd()
-        .map_err(io_err(path))?;
-    w.extend(flat).map_err(io_err(path))?;
-    w.finish().map_err(io_err(path))
+    let mut w = BufWriter::new(file);
+    let rows = positions
+        .iter()
+        .zip(features.chunks_exact(dim))
+        .flat_map(|(p, f)| p.iter().chain(f).copied());
+    write_npy(&mut w, &[positions.len() as u64, (3 + dim) as u64], rows)
+        .and_then(|()| w.flush())
+        .map_err(io_err(path))
+}
+
+/// An element type of the arrays this module reads and writes: a 4-byte number.
+pub trait Element: Copy {
+    /// numpy's type code without the byte order (`f4`, `i4`).
+    const CODE: &'static str;
+    /// From little-endian bytes.
+    fn from_le(b: [u8; 4]) -> Self;
+    /// To little-endian bytes.
+    fn to_le(self) -> [u8; 4];
+}
+
+impl Element for f32 {
+    const CODE: &'static str = "f4";
+    fn from_le(b: [u8; 4]) -> Self {
+        f32::from_le_bytes(b)
+    }
+    fn to_le(self) -> [u8; 4] {
+        self.to_le_bytes()
+    }
+}
+
+impl Element for i32 {
+    const CODE: &'static str = "i4";
+    fn from_le(b: [u8; 4]) -> Self {
+        i32::from_le_bytes(b)
+    }
+    fn to_le(self) -> [u8; 4] {
+        self.to_le_bytes()
+    }
+}
+
+/// The header of a `.npy` file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NpyHeader {
+    /// The dtype as written (`<f4`; a structured dtype is kept as its literal text).
+    pub descr: String,
+    /// Column-major data.
+    pub fortran_order: bool,
+    /// The array's shape (empty for a scalar).
+    pub shape: Vec<u64>,
+}
+
+impl NpyHeader {
+    /// The data of a C-ordered array of `T` (either byte order), checked against the shape.
+    pub fn decode<T: Element>(&self, body: &[u8]) -> Result<Vec<T>, String> {
+        let big_endian = match self.descr.strip_suffix(T::CODE) {
+            Some("<") => false,
+            Some(">") => true,
+            Some("=") => cfg!(target_endian = "big"),
+            _ => return Err(format!("found dtype {}", self.descr)),
+        };
+        if self.fortran_order {
+            return Err("found a Fortran-ordered array".into());
+        }
+        let n = self
+            .shape
+            .iter()
+            .try_fold(1u64, |n, &d| n.checked_mul(d))
+            .and_then(|n| usize::try_from(n).ok())
+            .filter(|n| n.checked_mul(4).is_some())
+            .ok_or_else(|| format!("shape {:?} is too large", self.shape))?;
+        if body.len() < n * 4 {
+            return Err(format!(
+                "truncated data: {} bytes for shape {:?}, expected {}",
+                body.len(),
+                self.shape,
+                n * 4
+            ));
+        }
+        Ok(body[..n * 4]
+            .chunks_exact(4)
+            .map(|c| {
+                let mut b = [c[0], c[1], c[2], c[3]];
+                if big_endian {
+                    b.reverse();
+                }
+                T::from_le(b)
+            })
+            .collect())
+    }
+}
+
+/// Split a `.npy` file into its header and data (versions 1, 2 and 3 of the format).
+pub fn parse_npy(bytes: &[u8]) -> Result<(NpyHeader, &[u8]), String> {
+    let rest = bytes
+        .strip_prefix(b"\x93NUMPY")
+        .ok_or("no .npy magic string")?;
+    let version = *rest.first().ok_or("no format version")?;
+    let (width, start): (usize, usize) = match version {
+        1 => (2, 10),
+        2 | 3 => (4, 12),
+        v => return Err(format!("unknown format version {v}")),
+    };
+    // The header length: little-endian u16 (version 1) or u32.
+    let len = rest
+        .get(2..2 + width)
+        .ok_or("truncated header")?
+        .iter()
+        .rev()
+        .fold(0usize, |n, &b| n << 8 | b as usize);
+    let text = bytes
+        .get(start..start.saturating_add(len))
+        .ok_or("truncated header")?;
+    let text = std::str::from_utf8(text).map_err(|_| "header is not text")?;
+    let header = parse_header(text).map_err(|e| format!("header `{}`: {e}", text.trim_end()))?;
+    Ok((header, &bytes[start + len..]))
+}
+
+/// A value of the Python-literal subset that `.npy` headers use.
+#[derive(Debug)]
+enum Lit<'a> {
+    Str(&'a str),
+    Int(u64),
+    Bool(bool),
+    Seq(Vec<Lit<'a>>),
+    Dict(Vec<(Lit<'a>, Lit<'a>)>),
+    None,
+}
+
+struct LitParser<'a> {
+    s: &'a str,
+    i: usize,
+}
+
+impl<'a> LitParser<'a> {
+    fn ws(&mut self) {
+        while self.s[self.i..].starts_with(|c: char| c.is_ascii_whitespace()) {
+            self.i += 1;
+        }
+    }
+
+    fn eat(&mut self, c: char) -> bool {
+        self.ws();
+        let hit = self.s[self.i..].starts_with(c);
+        if hit {
+            self.i += 1;
+        }
+        hit
+    }
+
+    /// Items up to `close`, separated by commas, a trailing comma allowed.
+    fn items<T>(
+        &mut self,
+        close: char,
+        mut item: impl FnMut(&mut Self) -> Result<T, String>,
+    ) -> Result<Vec<T>, String> {
+        let mut out = Vec::new();
+        loop {
+            if self.eat(close) {
+                return Ok(out);
+            }
+            out.push(item(self)?);
+            if self.eat(close) {
+                return Ok(out);
+            }
+            if !self.eat(',') {
+                return Err(format!("expected `,` or `{close}` at byte {}", self.i));
+            }
+        }
+    }
+
+    fn value(&mut self) -> Result<Lit<'a>, String> {
+        self.ws();
+        let rest = &self.s[self.i..];
+        let Some(c) = rest.chars().next() else {
+            return Err("unexpected end".into());
+        };
+        match c {
+            '\'' | '"' => {
+                let end = rest[1..]
+                    .find(c)
+                    .ok_or_else(|| format!("unterminated string at byte {}", self.i))?;
+                self.i += end + 2;
+                Ok(Lit::Str(&rest[1..=end]))
+            }
+            '(' | '[' => {
+                self.i += 1;
+                let close = if c == '(' { ')' } else { ']' };
+                Ok(Lit::Seq(self.items(close, Self::value)?))
+            }
+            '{' => {
+                self.i += 1;
+                Ok(Lit::Dict(self.items('}', |p| {
+                    let k = p.value()?;
+                    if !p.eat(':') {
+                        return Err(format!("expected `:` at byte {}", p.i));
+                    }
+                    Ok((k, p.value()?))
+                })?))
+            }
+            _ => {
+                let len = rest
+                    .find(|c: char| !c.is_ascii_alphanumeric())
+                    .unwrap_or(rest.len());
+                let word = &rest[..len];
+                self.i += len;
+                match word {
+                    "True" => Ok(Lit::Bool(true)),
+                    "False" => Ok(Lit::Bool(false)),
+                    "None" => Ok(Lit::None),
+                    // Python 2 wrote long integers with an `L`.
+                    _ => word
+                        .strip_suffix('L')
+                        .unwrap_or(word)
+                        .parse()
+                        .map(Lit::Int)
+                        .map_err(|_| format!("unexpected `{word}`")),
+                }
+            }
+        }
+    }
+}
+
+fn parse_header(text: &str) -> Result<NpyHeader, String> {
+    let mut p = LitParser { s: text, i: 0 };
+    let Lit::Dict(entries) = p.value()? else {
+        return Err("not a dict".into());
+    };
+    let (mut descr, mut fortran_order, mut shape) = (None, None, None);
+    for (key, value) in entries {
+        match (key, value) {
+            (Lit::Str("descr"), Lit::Str(d)) => descr = Some(d.to_owned()),
+            (Lit::Str("descr"), other) => descr = Some(format!("{other:?}")),
+            (Lit::Str("fortran_order"), Lit::Bool(b)) => fortran_order = Some(b),
+            (Lit::Str("shape"), Lit::Seq(dims)) => {
+                let dims = dims.into_iter().map(|d| match d {
+                    Lit::Int(d) => Ok(d),
+                    other => Err(format!("bad dimension {other:?}")),
+                });
+                shape = Some(dims.collect::<Result<Vec<_>, _>>()?);
+            }
+            (key, _) => return Err(format!("unexpected entry {key:?}")),
+        }
+    }
+    Ok(NpyHeader {
+        descr: descr.ok_or("no `descr`")?,
+        fortran_order: fortran_order.ok_or("no `fortran_order`")?,
+        shape: shape.ok_or("no `shape`")?,
+    })
+}
+
+/// Write a C-ordered little-endian array of `T` as a version 1.0 `.npy` (the header padded as numpy pads
+/// it, so the data starts 64-byte aligned).
+pub fn write_npy<T: Element>(
+    w: &mut impl Write,
+    shape: &[u64],
+    data: impl IntoIterator<Item = T>,
+) -> std::io::Result<()> {
+    let dims: Vec<String> = shape.iter().map(u64::to_string).collect();
+    let shape_text = match dims.len() {
+        1 => format!("({},)", dims[0]),
+        _ => format!("({})", dims.join(", ")),
+    };
+    let mut header = format!(
+        "{{'descr': '<{}', 'fortran_order': False, 'shape': {shape_text}, }}",
+        T::CODE
+    );
+    let total = 10 + header.len() + 1;
+    header.extend(std::iter::repeat_n(' ', total.next_multiple_of(64) - total));
+    header.push('\n');
+    let len = u16::try_from(header.len())
+        .map_err(|_| std::io::Error::other("array shape too long for a .npy header"))?;
+    w.write_all(b"\x93NUMPY\x01\x00")?;
+    w.write_all(&len.to_le_bytes())?;
+    w.write_all(header.as_bytes())?;
+    let expected: u64 = shape.iter().product();
+    let mut written = 0u64;
+    for x in data {
+        w.write_all(&x.to_le())?;
+        written += 1;
+    }
+    if written != expected {
+        return Err(std::io::Error::other(format!(
+            "{written} values for shape {shape:?}"
+        )));
+    }
+    Ok(())
 }
 
 /// Read a pose file: one `tx ty tz qx qy qz qw` line per frame; `#` starts a comment.
@@ -177,31 +440,71 @@ pub fn write_map_npz<const D: usize>(
     path: &Path,
     voxels: &[(VoxelKey, &VoxelStats<D>)],
 ) -> Result<(), IoError> {
-    let mut npz = npyz::npz::NpzWriter::create(path).map_err(io_err(path))?;
+    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let mut zip = zip::ZipWriter::new(BufWriter::new(file));
     let v = voxels.len() as u64;
-    let opts = zip::write::FileOptions::default();
     let keys = voxels.iter().flat_map(|(k, _)| k.as_array());
     let lambda = voxels.iter().map(|(_, s)| s.lambda);
     let mean = voxels.iter().flat_map(|(_, s)| s.mean);
     let psi = voxels.iter().flat_map(|(_, s)| s.psi);
-    macro_rules! array {
-        ($name:expr, $ty:ty, $shape:expr, $data:expr) => {{
-            let mut w = npz
-                .array::<$ty>($name, opts)
-                .map_err(io_err(path))?
-                .default_dtype()
-                .shape($shape)
-                .begin_nd()
-                .map_err(io_err(path))?;
-            w.extend($data).map_err(io_err(path))?;
-            w.finish().map_err(io_err(path))?;
-        }};
+    let write = || -> std::io::Result<()> {
+        let opts = zip::write::FileOptions::default();
+        zip.start_file("keys.npy", opts)?;
+        write_npy(&mut zip, &[v, 3], keys)?;
+        zip.start_file("lambda.npy", opts)?;
+        write_npy(&mut zip, &[v], lambda)?;
+        zip.start_file("mean.npy", opts)?;
+        write_npy(&mut zip, &[v, D as u64], mean)?;
+        zip.start_file("psi.npy", opts)?;
+        write_npy(&mut zip, &[v, D as u64], psi)?;
+        zip.finish()?.flush()
+    };
+    write().map_err(io_err(path))
+}
+
+/// A `.npz` archive open for reading (numpy's `savez` and `savez_compressed` files, and ours).
+pub struct NpzReader<R: Read + Seek> {
+    zip: zip::ZipArchive<R>,
+    path: PathBuf,
+}
+
+impl NpzReader<std::io::BufReader<std::fs::File>> {
+    /// Open an archive.
+    pub fn open(path: &Path) -> Result<Self, IoError> {
+        let file = std::fs::File::open(path).map_err(io_err(path))?;
+        let zip = zip::ZipArchive::new(std::io::BufReader::new(file))
+            .map_err(|e| io_err(path)(e.into()))?;
+        Ok(NpzReader {
+            zip,
+            path: path.to_owned(),
+        })
     }
-    array!("keys", i32, &[v, 3], keys);
-    array!("lambda", f32, &[v], lambda);
-    array!("mean", f32, &[v, D as u64], mean);
-    array!("psi", f32, &[v, D as u64], psi);
-    Ok(())
+}
+
+impl<R: Read + Seek> NpzReader<R> {
+    /// The array `name` (stored as `name.npy`): its shape and C-ordered data.
+    pub fn array<T: Element>(&mut self, name: &str) -> Result<(Vec<u64>, Vec<T>), IoError> {
+        let path = &self.path;
+        let bad = |problem: String| IoError::BadFrame {
+            path: path.to_owned(),
+            problem,
+        };
+        let mut entry = match self.zip.by_name(&format!("{name}.npy")) {
+            Ok(entry) => entry,
+            Err(zip::result::ZipError::FileNotFound) => {
+                return Err(bad(format!("no array `{name}`")))
+            }
+            Err(e) => return Err(io_err(path)(e.into())),
+        };
+        let mut bytes = Vec::with_capacity(entry.size().min(1 << 30) as usize);
+        entry.read_to_end(&mut bytes).map_err(io_err(path))?;
+        let (header, body) = parse_npy(&bytes)
+            .map_err(|e| bad(format!("`{name}`: not a valid .npy array ({e})")))?;
+        let data = header
+            .decode(body)
+            .map_err(|e| bad(format!("`{name}`: {e}")))?;
+        Ok((header.shape, data))
+    }
 }
 
 /// A map read back from `.npz` (for tests and the base station).
@@ -221,27 +524,11 @@ pub struct NpzMap {
 
 /// Read a map written by [`write_map_npz`].
 pub fn read_map_npz(path: &Path) -> Result<NpzMap, IoError> {
-    let mut npz = npyz::npz::NpzArchive::open(path).map_err(io_err(path))?;
-    fn array<T: npyz::Deserialize, R: std::io::Read + std::io::Seek>(
-        npz: &mut npyz::npz::NpzArchive<R>,
-        path: &Path,
-        name: &str,
-    ) -> Result<(Vec<u64>, Vec<T>), IoError> {
-        let bad = |problem: String| IoError::BadFrame {
-            path: path.to_owned(),
-            problem,
-        };
-        let f = npz
-            .by_name(name)
-            .map_err(io_err(path))?
-            .ok_or_else(|| bad(format!("no array `{name}`")))?;
-        let shape = f.shape().to_vec();
-        Ok((shape, f.into_vec().map_err(io_err(path))?))
-    }
-    let (_, flat) = array::<i32, _>(&mut npz, path, "keys")?;
-    let (_, lambda) = array(&mut npz, path, "lambda")?;
-    let (shape, mean) = array(&mut npz, path, "mean")?;
-    let (_, psi) = array(&mut npz, path, "psi")?;
+    let mut npz = NpzReader::open(path)?;
+    let (_, flat) = npz.array::<i32>("keys")?;
+    let (_, lambda) = npz.array("lambda")?;
+    let (shape, mean) = npz.array("mean")?;
+    let (_, psi) = npz.array("psi")?;
     let keys = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     Ok(NpzMap {
         keys,
@@ -250,4 +537,145 @@ pub fn read_map_npz(path: &Path) -> Result<NpzMap, IoError> {
         psi,
         dim: shape.get(1).copied().unwrap_or(0) as usize,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `np.save` of `np.arange(6, dtype='<f4').reshape(2, 3)`: numpy's header, byte for byte.
+    fn numpy_arange() -> Vec<u8> {
+        let mut b =
+            b"\x93NUMPY\x01\x00\x76\x00{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }"
+                .to_vec();
+        b.resize(127, b' ');
+        b.push(b'\n');
+        for x in 0..6 {
+            b.extend((x as f32).to_le_bytes());
+        }
+        b
+    }
+
+    #[test]
+    fn writes_what_numpy_writes() {
+        let mut ours = Vec::new();
+        write_npy(&mut ours, &[2, 3], (0..6).map(|x| x as f32)).unwrap();
+        assert_eq!(ours, numpy_arange());
+        let mut one_d = Vec::new();
+        write_npy(&mut one_d, &[2], [7i32, -1]).unwrap();
+        let (h, body) = parse_npy(&one_d).unwrap();
+        assert_eq!((h.descr.as_str(), h.shape.as_slice()), ("<i4", &[2][..]));
+        assert_eq!(h.decode::<i32>(body).unwrap(), [7, -1]);
+        assert_eq!(one_d.len() - body.len(), 128, "data starts 64-byte aligned");
+        // The shape must match the data.
+        assert!(write_npy(&mut Vec::new(), &[3], [1.0f32]).is_err());
+    }
+
+    #[test]
+    fn reads_numpy_headers() {
+        let bytes = numpy_arange();
+        let (h, body) = parse_npy(&bytes).unwrap();
+        assert!(!h.fortran_order);
+        assert_eq!(h.shape, [2, 3]);
+        assert_eq!(
+            h.decode::<f32>(body).unwrap(),
+            [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+        );
+        // Wrong type for the caller.
+        assert_eq!(h.decode::<i32>(body).unwrap_err(), "found dtype <f4");
+        // Big-endian data, a version 2 header, double quotes, Python 2 longs, no trailing comma.
+        let text = "{\"descr\": \">i4\", \"shape\": (1L, 3L), \"fortran_order\": False}\n";
+        let mut b = b"\x93NUMPY\x02\x00".to_vec();
+        b.extend((text.len() as u32).to_le_bytes());
+        b.extend(text.as_bytes());
+        b.extend([0, 0, 0, 1, 0xff, 0xff, 0xff, 0xfe, 0, 0, 0, 3]);
+        let (h, body) = parse_npy(&b).unwrap();
+        assert_eq!(h.shape, [1, 3]);
+        assert_eq!(h.decode::<i32>(body).unwrap(), [1, -2, 3]);
+    }
+
+    fn header(text: &str) -> Result<NpyHeader, String> {
+        let mut b = b"\x93NUMPY\x01\x00".to_vec();
+        b.extend((text.len() as u16).to_le_bytes());
+        b.extend(text.as_bytes());
+        parse_npy(&b).map(|(h, _)| h)
+    }
+
+    #[test]
+    fn rejects_what_it_cannot_read() {
+        let plain = |descr: &str, fortran: &str, shape: &str| {
+            header(&format!(
+                "{{'descr': '{descr}', 'fortran_order': {fortran}, 'shape': {shape}, }}"
+            ))
+        };
+        let h = plain("<f8", "False", "(4,)").unwrap();
+        assert_eq!(h.decode::<f32>(&[0; 32]).unwrap_err(), "found dtype <f8");
+        let h = plain("<f4", "True", "(2, 2)").unwrap();
+        assert!(h.decode::<f32>(&[0; 16]).unwrap_err().contains("Fortran"));
+        let h = plain("<f4", "False", "(2, 2)").unwrap();
+        assert!(h.decode::<f32>(&[0; 15]).unwrap_err().contains("truncated"));
+        assert_eq!(h.decode::<f32>(&[0; 16]).unwrap(), [0.0; 4]);
+        let h = plain("<f4", "False", "()").unwrap();
+        assert_eq!(h.decode::<f32>(&1.5f32.to_le_bytes()).unwrap(), [1.5]);
+        let h = plain("<f4", "False", "(4294967296, 4294967296, 4294967296)").unwrap();
+        assert!(h.decode::<f32>(&[]).unwrap_err().contains("too large"));
+        // A structured dtype parses but is not ours.
+        let h = header(
+            "{'descr': [('a', '<f4'), ('b', '<i4')], 'fortran_order': False, 'shape': (3,), }",
+        )
+        .unwrap();
+        assert!(h
+            .decode::<f32>(&[0; 24])
+            .unwrap_err()
+            .starts_with("found dtype Seq"));
+        for bad in [
+            "",
+            "{",
+            "{'descr': '<f4'",
+            "{'descr': '<f4', 'fortran_order': False}",
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, x)}",
+            "{'descr': '<f4' 'fortran_order': False, 'shape': (2,)}",
+            "{'descr: '<f4', 'fortran_order': False, 'shape': (2,)}",
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2,), 'extra': 1}",
+            "[1, 2]",
+        ] {
+            assert!(header(bad).is_err(), "{bad}");
+        }
+        for bytes in [
+            &b""[..],
+            b"\x93NUMPY",
+            b"\x93NUMPY\x01\x00\x10",
+            b"\x93NUMPY\x04\x00\x10\x00",
+            b"\x93NUMPY\x01\x00\x10\x00{",
+            b"PK\x03\x04",
+        ] {
+            assert!(parse_npy(bytes).is_err(), "{bytes:?}");
+        }
+    }
+
+    /// `np.savez` (stored, zip64 entries) and `np.savez_compressed` (deflate) archives of
+    /// `mean=[1.5, -2]` (float32) and `keys=[[1, -2, 3], [4, 5, -6]]` (int32).
+    #[test]
+    fn reads_numpy_archives() {
+        let dir = env!("CARGO_MANIFEST_DIR");
+        for name in ["numpy-savez.npz", "numpy-savez-compressed.npz"] {
+            let path = Path::new(dir).join("tests/data").join(name);
+            let mut npz = NpzReader::open(&path).unwrap();
+            assert_eq!(
+                npz.array::<f32>("mean").unwrap(),
+                (vec![2], vec![1.5, -2.0])
+            );
+            assert_eq!(
+                npz.array::<i32>("keys").unwrap(),
+                (vec![2, 3], vec![1, -2, 3, 4, 5, -6])
+            );
+            let err = npz.array::<f32>("keys").unwrap_err().to_string();
+            assert!(
+                err.contains(name) && err.contains("found dtype <i4"),
+                "{err}"
+            );
+            let err = npz.array::<f32>("psi").unwrap_err().to_string();
+            assert!(err.contains("no array `psi`"), "{err}");
+        }
+    }
 }

@@ -1,6 +1,6 @@
 //! `host-sim integrate`: .npy frames in, .npz map out, read back; malformed input gives a clear error.
 
-use host_sim::npy_io::{read_map_npz, write_frame};
+use host_sim::npy_io::{read_map_npz, write_frame, write_npy};
 use host_sim::ReferenceMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use latentbki::{MapConfig, VoxelKey};
@@ -121,17 +121,28 @@ fn malformed_frames_give_clear_errors() {
     }
     // Right format, wrong shape: 1-D.
     let p = dir.path().join("narrow.npy");
-    npyz::to_file_1d(&p, vec![1.0f32, 2.0, 3.0]).unwrap();
+    let mut bytes = Vec::new();
+    write_npy(&mut bytes, &[3], [1.0f32, 2.0, 3.0]).unwrap();
+    std::fs::write(&p, bytes).unwrap();
     let (ok, err) = run_integrate(&[p.as_os_str(), "--out".as_ref(), o]);
     assert!(
         !ok && err.contains("narrow.npy") && err.contains("found shape [3]"),
         "{err}"
     );
-    // Wrong dtype: float64.
+    // Wrong dtype: float64, shape (2, 4).
     let p = dir.path().join("f64.npy");
-    npyz::to_file_1d(&p, vec![1.0f64; 8]).unwrap();
+    let mut bytes =
+        b"\x93NUMPY\x01\x00\x76\x00{'descr': '<f8', 'fortran_order': False, 'shape': (2, 4), }"
+            .to_vec();
+    bytes.resize(127, b' ');
+    bytes.push(b'\n');
+    bytes.extend(1.0f64.to_le_bytes().repeat(8));
+    std::fs::write(&p, bytes).unwrap();
     let (ok, err) = run_integrate(&[p.as_os_str(), "--out".as_ref(), o]);
-    assert!(!ok && err.contains("f64.npy"), "{err}");
+    assert!(
+        !ok && err.contains("f64.npy") && err.contains("found dtype <f8"),
+        "{err}"
+    );
     // Truncated data: a valid header promising more rows than the file holds.
     let good = dir.path().join("good.npy");
     let (pos, feat) = frame(9, 50);

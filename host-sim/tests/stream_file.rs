@@ -165,7 +165,7 @@ fn queries_and_exports_show_the_scene() {
     );
     let px = |x: f32, y: f32| {
         let (kx, ky) = ((x / voxel).floor() as i32, (y / voxel).floor() as i32);
-        img.get_pixel((kx - x0) as u32, (y1 - ky) as u32).0
+        img.get_pixel((kx - x0) as u32, (y1 - ky) as u32)
     };
     assert_eq!(
         px(4.0, 0.05),
@@ -189,7 +189,7 @@ fn queries_and_exports_show_the_scene() {
     .unwrap();
     assert_eq!(files.len(), 3);
     for f in &files {
-        let back = image::open(f).unwrap();
+        let back = host_sim::png_io::RgbImage::read_png(f).unwrap();
         assert_eq!(back.width(), img.width() * 3);
     }
     let ply = dir.path().join("map.ply");

@@ -3,12 +3,13 @@
 
 use super::export::{write_ply, write_pngs};
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
+use crate::npy_io::NpzReader;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use latentbki::wire::feature_space_id;
 use latentbki::{Codebook, Pca};
 use std::io::Read;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Feature dimension the base station is built for (the wire's D).
@@ -54,14 +55,10 @@ pub struct BaseStationArgs {
     ply: Option<PathBuf>,
 }
 
-fn read_pca(path: &PathBuf) -> Result<Box<Pca<DIM, FULL>>> {
-    let mut npz =
-        npyz::npz::NpzArchive::open(path).with_context(|| format!("opening {}", path.display()))?;
+fn read_pca(path: &Path) -> Result<Box<Pca<DIM, FULL>>> {
+    let mut npz = NpzReader::open(path)?;
     let mut array = |name: &str, len: usize| -> Result<Vec<f32>> {
-        let f = npz
-            .by_name(name)?
-            .with_context(|| format!("{}: no array `{name}`", path.display()))?;
-        let v: Vec<f32> = f.into_vec()?;
+        let (_, v) = npz.array::<f32>(name)?;
         if v.len() != len {
             bail!(
                 "{}: `{name}` has {} values, expected {len}",

@@ -7,7 +7,7 @@
 //! extra properties for any point-cloud viewer.
 
 use super::global_map::{argmax, GlobalMap};
-use image::{Rgb, RgbImage};
+pub use crate::png_io::RgbImage;
 use latentbki::{Codebook, VoxelKey};
 use std::collections::HashMap;
 use std::io::Write;
@@ -29,14 +29,6 @@ pub enum ExportError {
         path: String,
         /// The cause.
         source: std::io::Error,
-    },
-    /// PNG encoding failed.
-    #[error("cannot encode {path}: {source}")]
-    Image {
-        /// The file.
-        path: String,
-        /// The cause.
-        source: image::ImageError,
     },
 }
 
@@ -135,13 +127,13 @@ fn paint(
 ) -> Result<RgbImage, ExportError> {
     let g = grid(cols)?;
     let scale = scale.max(1);
-    let mut img = RgbImage::from_pixel(g.w * scale, g.h * scale, Rgb([255, 255, 255]));
+    let mut img = RgbImage::from_pixel(g.w * scale, g.h * scale, [255, 255, 255]);
     for (&(x, y), keys) in cols {
         if let Some(c) = colour(keys) {
             let (px, py) = ((x - g.x0) as u32 * scale, (g.y1 - y) as u32 * scale);
             for dy in 0..scale {
                 for dx in 0..scale {
-                    img.put_pixel(px + dx, py + dy, Rgb(c));
+                    img.put_pixel(px + dx, py + dy, c);
                 }
             }
         }
@@ -150,11 +142,10 @@ fn paint(
 }
 
 fn save_png(img: &RgbImage, path: &Path) -> Result<(), ExportError> {
-    img.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|source| ExportError::Image {
-            path: path.display().to_string(),
-            source,
-        })
+    img.save_png(path).map_err(|source| ExportError::Io {
+        path: path.display().to_string(),
+        source,
+    })
 }
 
 /// Top-down label image: the topmost voxel's best category per column.

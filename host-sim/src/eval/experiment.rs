@@ -10,8 +10,8 @@
 //! 4. For the LatentBKI f = 3 map, each held-out point also gets its voxel's E-optimality, D-optimality and
 //!    sampling uncertainty, for the sparsification analysis.
 //!
-//! Methods run in parallel threads (one method per thread, frames in order), so results do not depend on
-//! scheduling: same seed, same table.
+//! Methods (and the sparsity sweep's runs) run in parallel threads (one run per thread, frames in order), so
+//! results do not depend on scheduling: same seed, same table.
 
 use super::methods::{
     CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, Mapper, OnDevice,
@@ -354,6 +354,53 @@ fn workers() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
+/// Run `work` on every job on the worker threads, heaviest (by `weight`) first so the last thread to finish
+/// is not the slowest job started last. Results come back in the order of `jobs`.
+fn parallel<J: Sync, R: Send>(
+    jobs: &[J],
+    weight: impl Fn(&J) -> u64,
+    work: impl Fn(&J) -> R + Sync,
+) -> Vec<R> {
+    let mut queue: Vec<usize> = (0..jobs.len()).collect();
+    queue.sort_by_key(|&i| std::cmp::Reverse(weight(&jobs[i])));
+    let queue = Mutex::new(queue.into_iter());
+    let results: Mutex<Vec<Option<R>>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
+    std::thread::scope(|s| {
+        for _ in 0..workers().min(jobs.len()) {
+            std::thread::Builder::new()
+                .stack_size(256 << 20)
+                .spawn_scoped(s, || loop {
+                    let next = queue.lock().expect("queue").next();
+                    let Some(i) = next else { break };
+                    let r = work(&jobs[i]);
+                    results.lock().expect("results")[i] = Some(r);
+                })
+                .expect("spawning a worker");
+        }
+    });
+    results
+        .into_inner()
+        .expect("results")
+        .into_iter()
+        .map(|r| r.expect("every job ran"))
+        .collect()
+}
+
+/// How heavy a run of `m` is per point, for scheduling: the kernel's reach f³ dominates, and the device map
+/// also quantizes and streams its evictions (about four times the f32 map's time).
+fn weight(m: &Method) -> u64 {
+    match m {
+        Method::OnDevice(f) => 4 * (10 + u64::from(*f).pow(3)),
+        Method::LatentBki(f) => 10 + u64::from(*f).pow(3),
+        Method::ConvBki(f) => 5 + u64::from(*f).pow(3),
+        _ => 1,
+    }
+}
+
+fn points(frames: &[EncodedFrame]) -> u64 {
+    frames.iter().map(|f| f.points.len() as u64).sum()
+}
+
 /// Run `methods` over the same frames in parallel; `score` names the method whose held-out points get
 /// uncertainties; `link` receives the device map's evictions. Results come back in the order asked.
 pub fn run(
@@ -363,45 +410,63 @@ pub fn run(
     link: Option<Box<dyn VoxelSink>>,
     message: &str,
 ) -> anyhow::Result<Vec<MethodResult>> {
-    let bar = progress((methods.len() * inputs.frames.len()) as u64, message);
+    let (results, _) = run_with_sweep(methods, inputs, score, link, &Sweep::none(), message)?;
+    Ok(results)
+}
+
+/// [`run`], and the sparsity sweep's runs in the same pool of worker threads (one pool keeps both cores
+/// busy: the slow device map would otherwise leave the other idle).
+pub fn run_with_sweep(
+    methods: &[Method],
+    inputs: &Inputs<'_>,
+    score: Option<Method>,
+    link: Option<Box<dyn VoxelSink>>,
+    sweep: &Sweep,
+    message: &str,
+) -> anyhow::Result<(Vec<MethodResult>, Vec<SweepPoint>)> {
+    enum Job {
+        Method(Method),
+        Sweep(usize, u8),
+    }
+    enum Done {
+        Method(anyhow::Result<MethodResult>),
+        Sweep(anyhow::Result<SweepPoint>),
+    }
+    let jobs: Vec<Job> = methods
+        .iter()
+        .map(|&m| Job::Method(m))
+        .chain(sweep.jobs().map(|(r, f)| Job::Sweep(r, f)))
+        .collect();
+    let steps = methods.len() * inputs.frames.len() + sweep.steps();
+    let bar = progress(steps as u64, message);
     let link = Mutex::new(link);
-    // Heaviest first, so the last thread to finish is not the slowest method started last.
-    let weight = |m: &Method| match m {
-        Method::OnDevice(f) | Method::LatentBki(f) => 10 + u32::from(*f),
-        Method::ConvBki(f) => 5 + u32::from(*f),
-        _ => 0,
-    };
-    let mut queue: Vec<usize> = (0..methods.len()).collect();
-    queue.sort_by_key(|&i| std::cmp::Reverse(weight(&methods[i])));
-    let queue = Mutex::new(queue.into_iter());
-    let results: Mutex<Vec<Option<anyhow::Result<MethodResult>>>> =
-        Mutex::new((0..methods.len()).map(|_| None).collect());
-    std::thread::scope(|s| {
-        for _ in 0..workers().min(methods.len()) {
-            std::thread::Builder::new()
-                .stack_size(256 << 20)
-                .spawn_scoped(s, || loop {
-                    let next = queue.lock().expect("queue").next();
-                    let Some(i) = next else { break };
-                    let m = methods[i];
-                    let l = if matches!(m, Method::OnDevice(_)) {
-                        link.lock().expect("link").take()
-                    } else {
-                        None
-                    };
-                    let r = run_one(m, inputs, score == Some(m), l, &bar);
-                    results.lock().expect("results")[i] = Some(r);
-                })
-                .expect("spawning a worker");
-        }
-    });
+    let done = parallel(
+        &jobs,
+        |job| match job {
+            Job::Method(m) => points(inputs.frames) * weight(m),
+            Job::Sweep(r, f) => points(&sweep.runs[*r].frames) * weight(&Method::LatentBki(*f)),
+        },
+        |job| match *job {
+            Job::Method(m) => {
+                let l = if matches!(m, Method::OnDevice(_)) {
+                    link.lock().expect("link").take()
+                } else {
+                    None
+                };
+                Done::Method(run_one(m, inputs, score == Some(m), l, &bar))
+            }
+            Job::Sweep(r, f) => Done::Sweep(sweep.run(r, f, inputs.dec, inputs.setup, &bar)),
+        },
+    );
     bar.finish_and_clear();
-    results
-        .into_inner()
-        .expect("results")
-        .into_iter()
-        .map(|r| r.expect("every method ran"))
-        .collect()
+    let (mut results, mut points) = (Vec::new(), Vec::new());
+    for d in done {
+        match d {
+            Done::Method(r) => results.push(r?),
+            Done::Sweep(p) => points.push(p?),
+        }
+    }
+    Ok((results, points))
 }
 
 /// One point of the sparsity sweep.
@@ -419,43 +484,90 @@ pub struct SweepPoint {
     pub miou: f64,
 }
 
-/// Accuracy and mIoU of LatentBKI with each filter size at each sensor budget (paper Fig. 3).
-pub fn sparsity_sweep(
-    make: &dyn Fn(usize) -> Sequence,
-    budgets: &[usize],
-    filters: &[u8],
-    dec: &Decoding,
-    setup: &Setup,
-) -> anyhow::Result<Vec<SweepPoint>> {
-    let mut out = Vec::new();
-    for &b in budgets {
-        let seq = make(b);
-        let frames = encode(&seq, dec, setup);
-        let ppf = seq.points() as f64 / seq.frames.len().max(1) as f64;
-        let methods: Vec<Method> = filters.iter().map(|&f| Method::LatentBki(f)).collect();
-        let res = run(
-            &methods,
-            &Inputs {
-                frames: &frames,
-                config: &seq.config,
-                dec,
-                setup,
-            },
-            None,
-            None,
-            &format!("sweep {b} pts/frame"),
-        )?;
-        for (f, r) in filters.iter().zip(res) {
-            out.push(SweepPoint {
-                budget: b,
-                points_per_frame: ppf,
-                filter: *f,
-                accuracy: r.confusion.accuracy(),
-                miou: r.confusion.miou(),
-            });
+/// The sparsity sweep (paper Fig. 3): accuracy and mIoU of LatentBKI with each filter size at each sensor
+/// budget. Each budget's sequence is built and encoded once; the runs go to [`run_with_sweep`].
+pub struct Sweep {
+    runs: Vec<SweepRun>,
+    filters: Vec<u8>,
+}
+
+struct SweepRun {
+    budget: usize,
+    config: MapConfig,
+    frames: Vec<EncodedFrame>,
+    points_per_frame: f64,
+}
+
+impl Sweep {
+    /// No sweep.
+    pub fn none() -> Self {
+        Sweep {
+            runs: Vec::new(),
+            filters: Vec::new(),
         }
     }
-    Ok(out)
+
+    /// The sequence `make(b)` of each budget `b`, encoded, to be run with each of `filters`.
+    pub fn new(
+        make: &dyn Fn(usize) -> Sequence,
+        budgets: &[usize],
+        filters: &[u8],
+        dec: &Decoding,
+        setup: &Setup,
+    ) -> Self {
+        let runs = budgets
+            .iter()
+            .map(|&budget| {
+                let seq = make(budget);
+                SweepRun {
+                    budget,
+                    config: seq.config,
+                    frames: encode(&seq, dec, setup),
+                    points_per_frame: seq.points() as f64 / seq.frames.len().max(1) as f64,
+                }
+            })
+            .collect();
+        Sweep {
+            runs,
+            filters: filters.to_vec(),
+        }
+    }
+
+    /// (run, filter) pairs, budget by budget, in the order of the results.
+    fn jobs(&self) -> impl Iterator<Item = (usize, u8)> + '_ {
+        (0..self.runs.len()).flat_map(|r| self.filters.iter().map(move |&f| (r, f)))
+    }
+
+    /// Frames integrated over all runs (progress steps).
+    fn steps(&self) -> usize {
+        self.runs.iter().map(|r| r.frames.len()).sum::<usize>() * self.filters.len()
+    }
+
+    /// One run; only its scores are kept (the map is dropped here, not held until the pool is done).
+    fn run(
+        &self,
+        r: usize,
+        filter: u8,
+        dec: &Decoding,
+        setup: &Setup,
+        bar: &ProgressBar,
+    ) -> anyhow::Result<SweepPoint> {
+        let run = &self.runs[r];
+        let inputs = Inputs {
+            frames: &run.frames,
+            config: &run.config,
+            dec,
+            setup,
+        };
+        let res = run_one(Method::LatentBki(filter), &inputs, false, None, bar)?;
+        Ok(SweepPoint {
+            budget: run.budget,
+            points_per_frame: run.points_per_frame,
+            filter,
+            accuracy: res.confusion.accuracy(),
+            miou: res.confusion.miou(),
+        })
+    }
 }
 
 /// The results table in Markdown.

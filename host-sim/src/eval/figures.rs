@@ -32,6 +32,22 @@ fn err<E: std::fmt::Display>(e: E) -> Error {
     e.to_string().into()
 }
 
+/// Draw a `size` picture with `draw` into memory, then write it to `path` as a PNG.
+fn figure(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&Area) -> Result<(), Error>,
+) -> Result<(), Error> {
+    let mut rgb = vec![0; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(err)?;
+    }
+    crate::png_io::write_png(path, size.0, size.1, &rgb)
+        .map_err(|e| format!("cannot write {}: {e}", path.display()).into())
+}
+
 /// Distinct class colours (tab20 and a few more).
 pub const PALETTE: [(u8, u8, u8); 24] = [
     (31, 119, 180),
@@ -163,45 +179,45 @@ fn raster(
         .max(1);
     let (mw, mh) = (w * scale, h * scale);
     let panel_w = 260;
-    let root = BitMapBackend::new(path, (mw + panel_w + 40, mh + 90)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let (main, side) = root.split_horizontally(mw + 40);
-    main.draw(&Text::new(
-        title.to_string(),
-        (20, 12),
-        (FONT, 20).into_font(),
-    ))
-    .map_err(err)?;
-    let map = main.margin(45, 45, 20, 20);
-    map.fill(&RGBColor(245, 245, 245)).map_err(err)?;
-    for (&(x, y), (_, v)) in &top.columns {
-        if let Some(c) = colour(v) {
-            let px = ((x - top.bounds.0) as u32 * scale) as i32;
-            let py = ((top.bounds.3 - y) as u32 * scale) as i32;
-            map.draw(&Rectangle::new(
-                [(px, py), (px + scale as i32, py + scale as i32)],
-                c.filled(),
-            ))
-            .map_err(err)?;
+    figure(path, (mw + panel_w + 40, mh + 90), |root| {
+        root.fill(&WHITE).map_err(err)?;
+        let (main, side) = root.split_horizontally(mw + 40);
+        main.draw(&Text::new(
+            title.to_string(),
+            (20, 12),
+            (FONT, 20).into_font(),
+        ))
+        .map_err(err)?;
+        let map = main.margin(45, 45, 20, 20);
+        map.fill(&RGBColor(245, 245, 245)).map_err(err)?;
+        for (&(x, y), (_, v)) in &top.columns {
+            if let Some(c) = colour(v) {
+                let px = ((x - top.bounds.0) as u32 * scale) as i32;
+                let py = ((top.bounds.3 - y) as u32 * scale) as i32;
+                map.draw(&Rectangle::new(
+                    [(px, py), (px + scale as i32, py + scale as i32)],
+                    c.filled(),
+                ))
+                .map_err(err)?;
+            }
         }
-    }
-    // Scale bar: 1 m.
-    let bar = (1.0 / config.voxel_size() * scale as f32) as i32;
-    let y0 = mh as i32 + 60;
-    main.draw(&PathElement::new(
-        vec![(20, y0), (20 + bar, y0)],
-        BLACK.stroke_width(3),
-    ))
-    .map_err(err)?;
-    main.draw(&Text::new(
-        "1 m",
-        (26 + bar, y0 - 8),
-        (FONT, 14).into_font(),
-    ))
-    .map_err(err)?;
-    panel(&side.margin(45, 10, 0, 10))?;
-    root.present().map_err(err)?;
-    Ok(())
+        // Scale bar: 1 m.
+        let bar = (1.0 / config.voxel_size() * scale as f32) as i32;
+        let y0 = mh as i32 + 60;
+        main.draw(&PathElement::new(
+            vec![(20, y0), (20 + bar, y0)],
+            BLACK.stroke_width(3),
+        ))
+        .map_err(err)?;
+        main.draw(&Text::new(
+            "1 m",
+            (26 + bar, y0 - 8),
+            (FONT, 14).into_font(),
+        ))
+        .map_err(err)?;
+        panel(&side.margin(45, 10, 0, 10))?;
+        Ok(())
+    })
 }
 
 /// The top-down semantic map: each column coloured by the decoded class of its top voxel.
@@ -363,155 +379,155 @@ fn series_colour(i: usize) -> RGBColor {
 /// Accuracy and mIoU vs points per frame, one line per filter size (paper Fig. 3).
 pub fn sweep_plot(path: &Path, scene: &str, points: &[SweepPoint]) -> Result<(), Error> {
     register_font();
-    let root = BitMapBackend::new(path, (1100, 460)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let panels = root.split_evenly((1, 2));
-    let mut filters: Vec<u8> = points.iter().map(|p| p.filter).collect();
-    filters.sort_unstable();
-    filters.dedup();
-    let xs: Vec<f64> = points.iter().map(|p| p.points_per_frame.max(1.0)).collect();
-    let (x0, x1) = (
-        xs.iter().copied().fold(f64::INFINITY, f64::min) * 0.8,
-        xs.iter().copied().fold(f64::NEG_INFINITY, f64::max) * 1.25,
-    );
-    for (panel, (name, get)) in panels.iter().zip([
-        (
-            "Accuracy (%)",
-            (|p: &SweepPoint| p.accuracy) as fn(&SweepPoint) -> f64,
-        ),
-        ("mIoU (%)", |p: &SweepPoint| p.miou),
-    ]) {
-        let ys: Vec<f64> = points.iter().map(|p| 100.0 * get(p)).collect();
-        let y0 = ys.iter().copied().fold(f64::INFINITY, f64::min);
-        let y1 = ys.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let pad = ((y1 - y0) * 0.1).max(0.5);
-        let mut chart = ChartBuilder::on(panel)
-            .caption(format!("{scene}: {name} vs input sparsity"), (FONT, 18))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d((x0..x1).log_scale(), (y0 - pad)..(y1 + pad))
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("points per frame (log)")
-            .x_labels(8)
-            .x_label_formatter(&|x| format!("{x:.0}"))
-            .light_line_style(WHITE)
-            .y_desc(name)
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
-            .draw()
-            .map_err(err)?;
-        for (i, f) in filters.iter().enumerate() {
-            let c = series_colour(i);
-            let data: Vec<(f64, f64)> = points
-                .iter()
-                .filter(|p| p.filter == *f)
-                .map(|p| (p.points_per_frame.max(1.0), 100.0 * get(p)))
-                .collect();
+    figure(path, (1100, 460), |root| {
+        root.fill(&WHITE).map_err(err)?;
+        let panels = root.split_evenly((1, 2));
+        let mut filters: Vec<u8> = points.iter().map(|p| p.filter).collect();
+        filters.sort_unstable();
+        filters.dedup();
+        let xs: Vec<f64> = points.iter().map(|p| p.points_per_frame.max(1.0)).collect();
+        let (x0, x1) = (
+            xs.iter().copied().fold(f64::INFINITY, f64::min) * 0.8,
+            xs.iter().copied().fold(f64::NEG_INFINITY, f64::max) * 1.25,
+        );
+        for (panel, (name, get)) in panels.iter().zip([
+            (
+                "Accuracy (%)",
+                (|p: &SweepPoint| p.accuracy) as fn(&SweepPoint) -> f64,
+            ),
+            ("mIoU (%)", |p: &SweepPoint| p.miou),
+        ]) {
+            let ys: Vec<f64> = points.iter().map(|p| 100.0 * get(p)).collect();
+            let y0 = ys.iter().copied().fold(f64::INFINITY, f64::min);
+            let y1 = ys.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let pad = ((y1 - y0) * 0.1).max(0.5);
+            let mut chart = ChartBuilder::on(panel)
+                .caption(format!("{scene}: {name} vs input sparsity"), (FONT, 18))
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(50)
+                .build_cartesian_2d((x0..x1).log_scale(), (y0 - pad)..(y1 + pad))
+                .map_err(err)?;
             chart
-                .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
-                .map_err(err)?
-                .label(format!("f = {f}"))
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
-                });
+                .configure_mesh()
+                .x_desc("points per frame (log)")
+                .x_labels(8)
+                .x_label_formatter(&|x| format!("{x:.0}"))
+                .light_line_style(WHITE)
+                .y_desc(name)
+                .label_style((FONT, 13))
+                .axis_desc_style((FONT, 14))
+                .draw()
+                .map_err(err)?;
+            for (i, f) in filters.iter().enumerate() {
+                let c = series_colour(i);
+                let data: Vec<(f64, f64)> = points
+                    .iter()
+                    .filter(|p| p.filter == *f)
+                    .map(|p| (p.points_per_frame.max(1.0), 100.0 * get(p)))
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
+                    .map_err(err)?
+                    .label(format!("f = {f}"))
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                    });
+                chart
+                    .draw_series(
+                        data.iter()
+                            .map(|&(x, y)| Circle::new((x, y), 4, c.filled())),
+                    )
+                    .map_err(err)?;
+            }
             chart
-                .draw_series(
-                    data.iter()
-                        .map(|&(x, y)| Circle::new((x, y), 4, c.filled())),
-                )
+                .configure_series_labels()
+                .position(SeriesLabelPosition::LowerRight)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font((FONT, 14))
+                .draw()
                 .map_err(err)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font((FONT, 14))
-            .draw()
-            .map_err(err)?;
-    }
-    root.present().map_err(err)?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// Accuracy and mIoU of the remaining points as the most uncertain are removed (paper Fig. 4), with AUSE.
 pub fn sparsification_plot(path: &Path, scene: &str, s: &Sparsification) -> Result<(), Error> {
     register_font();
-    let root = BitMapBackend::new(path, (1100, 460)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let panels = root.split_evenly((1, 2));
-    for (pi, panel) in panels.iter().enumerate() {
-        let name = if pi == 0 { "Accuracy (%)" } else { "mIoU (%)" };
-        let val = |c: &super::sparsification::Curve, i: usize| {
-            100.0 * if pi == 0 { c.accuracy[i] } else { c.miou[i] }
-        };
-        let all: Vec<f64> = s
-            .curves
-            .iter()
-            .flat_map(|c| (0..c.removed.len()).map(move |i| (c, i)))
-            .map(|(c, i)| val(c, i))
-            .collect();
-        let y0 = all.iter().copied().fold(f64::INFINITY, f64::min);
-        let y1 = all.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let pad = ((y1 - y0) * 0.05).max(0.5);
-        let mut chart = ChartBuilder::on(panel)
-            .caption(
-                format!("{scene}: {name} vs uncertainty removed"),
-                (FONT, 18),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d(0.0..95.0, (y0 - pad)..(y1 + pad))
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("most uncertain points removed (%)")
-            .y_desc(name)
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
-            .draw()
-            .map_err(err)?;
-        for (i, c) in s.curves.iter().enumerate() {
-            let colour = match c.name.as_str() {
-                "oracle" => RGBColor(0, 0, 0),
-                "random" => RGBColor(150, 150, 150),
-                _ => series_colour(i),
+    figure(path, (1100, 460), |root| {
+        root.fill(&WHITE).map_err(err)?;
+        let panels = root.split_evenly((1, 2));
+        for (pi, panel) in panels.iter().enumerate() {
+            let name = if pi == 0 { "Accuracy (%)" } else { "mIoU (%)" };
+            let val = |c: &super::sparsification::Curve, i: usize| {
+                100.0 * if pi == 0 { c.accuracy[i] } else { c.miou[i] }
             };
-            let data: Vec<(f64, f64)> = (0..c.removed.len())
-                .map(|k| (100.0 * c.removed[k], val(c, k)))
+            let all: Vec<f64> = s
+                .curves
+                .iter()
+                .flat_map(|c| (0..c.removed.len()).map(move |i| (c, i)))
+                .map(|(c, i)| val(c, i))
                 .collect();
-            let label = match s.ause.iter().find(|a| a.0 == c.name) {
-                Some(a) => format!(
-                    "{} (AUSE {:.2})",
-                    c.name,
-                    100.0 * if pi == 0 { a.1 } else { a.2 }
-                ),
-                None => c.name.clone(),
-            };
-            let style = if c.name == "oracle" {
-                colour.stroke_width(1)
-            } else {
-                colour.stroke_width(2)
-            };
+            let y0 = all.iter().copied().fold(f64::INFINITY, f64::min);
+            let y1 = all.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let pad = ((y1 - y0) * 0.05).max(0.5);
+            let mut chart = ChartBuilder::on(panel)
+                .caption(
+                    format!("{scene}: {name} vs uncertainty removed"),
+                    (FONT, 18),
+                )
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(50)
+                .build_cartesian_2d(0.0..95.0, (y0 - pad)..(y1 + pad))
+                .map_err(err)?;
             chart
-                .draw_series(LineSeries::new(data, style))
-                .map_err(err)?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+                .configure_mesh()
+                .x_desc("most uncertain points removed (%)")
+                .y_desc(name)
+                .label_style((FONT, 13))
+                .axis_desc_style((FONT, 14))
+                .draw()
+                .map_err(err)?;
+            for (i, c) in s.curves.iter().enumerate() {
+                let colour = match c.name.as_str() {
+                    "oracle" => RGBColor(0, 0, 0),
+                    "random" => RGBColor(150, 150, 150),
+                    _ => series_colour(i),
+                };
+                let data: Vec<(f64, f64)> = (0..c.removed.len())
+                    .map(|k| (100.0 * c.removed[k], val(c, k)))
+                    .collect();
+                let label = match s.ause.iter().find(|a| a.0 == c.name) {
+                    Some(a) => format!(
+                        "{} (AUSE {:.2})",
+                        c.name,
+                        100.0 * if pi == 0 { a.1 } else { a.2 }
+                    ),
+                    None => c.name.clone(),
+                };
+                let style = if c.name == "oracle" {
+                    colour.stroke_width(1)
+                } else {
+                    colour.stroke_width(2)
+                };
+                chart
+                    .draw_series(LineSeries::new(data, style))
+                    .map_err(err)?
+                    .label(label)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::LowerRight)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font((FONT, 13))
+                .draw()
+                .map_err(err)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font((FONT, 13))
-            .draw()
-            .map_err(err)?;
-    }
-    root.present().map_err(err)?;
-    Ok(())
+        Ok(())
+    })
 }

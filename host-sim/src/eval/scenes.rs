@@ -209,7 +209,22 @@ pub fn run(
     let dec = experiment::decoding(&vocab, &train, setup)?;
     let frames = experiment::encode(&test, &dec, setup);
     let methods = Method::all();
-    let results = experiment::run(
+    let budgets = match scene {
+        Scene::Tile => &options.sweep_tile,
+        Scene::Indoor => &options.sweep_indoor,
+    };
+    let sweep = if sweep && !budgets.is_empty() {
+        experiment::Sweep::new(
+            &|b| source.sequence(b, false),
+            budgets,
+            &options.sweep_filters,
+            &dec,
+            setup,
+        )
+    } else {
+        experiment::Sweep::none()
+    };
+    let (results, sweep_points) = experiment::run_with_sweep(
         &methods,
         &experiment::Inputs {
             frames: &frames,
@@ -219,29 +234,16 @@ pub fn run(
         },
         Some(Method::LatentBki(3)),
         link,
-        &format!("{}: methods", scene.name()),
+        &sweep,
+        &format!("{}: methods and sweep", scene.name()),
     )?;
+    drop(sweep);
     let scored = &results
         .iter()
         .find(|r| r.method == Method::LatentBki(3))
         .expect("LatentBKI f = 3 ran")
         .scored;
     let spars = sparsification::analyse(scored, dec.classes.len());
-    let budgets = match scene {
-        Scene::Tile => &options.sweep_tile,
-        Scene::Indoor => &options.sweep_indoor,
-    };
-    let sweep_points = if sweep && !budgets.is_empty() {
-        experiment::sparsity_sweep(
-            &|b| source.sequence(b, false),
-            budgets,
-            &options.sweep_filters,
-            &dec,
-            setup,
-        )?
-    } else {
-        Vec::new()
-    };
 
     // Pictures, from the on-device map (what the robot holds plus what it streamed).
     let dir = out.join(scene.name());
