@@ -7,6 +7,9 @@
 #                   insncount QEMU plugin (built here with cc) counts between the markers around the map's work
 # Usage: boards/measure.sh            everything, prints a Markdown table
 #        boards/measure.sh --size     only build and compare the size (CI)
+#        boards/measure.sh --panic-never   the link-time proof that no panic is reachable (CI): builds with
+#                                     `--features panic-never`, runs it and checks its UART bytes equal the
+#                                     reporting build's
 #        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots)
 set -euo pipefail
 cd "$(dirname "$0")/qemu-mps2-an386"
@@ -23,6 +26,29 @@ OUT="$CARGO_TARGET_DIR/measure"
 mkdir -p "$OUT"
 
 cargo build --release --quiet
+
+# ---- panic-never: the panic handler calls an undefined symbol, so this build links only if no panic is
+# reachable from the firmware's entry. Same program otherwise: its UART stream must equal the normal build's.
+if [ "${1:-}" = --panic-never ]; then
+  # Its own target dir: built into the same one, cargo would uplift it over $ELF (and a later plain
+  # `cargo build` of the fresh reporting build does not copy it back), so every later run would use it.
+  PN_ELF=$(CARGO_TARGET_DIR="$CARGO_TARGET_DIR/panic-never" \
+    cargo build --release --quiet --features panic-never --message-format=json-render-diagnostics |
+    python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])') || {
+    echo "panic-never build does not link: a panic is reachable (python3 boards/panic-sites.py lists where)" >&2; exit 1; }
+  QEMU_SERIAL="$OUT/uart-panic-never.bin" ./run-qemu.sh "$PN_ELF" >/dev/null || {
+    echo "panic-never firmware failed: exit code $?" >&2; exit 1; }
+  QEMU_SERIAL="$OUT/uart-reporting.bin" ./run-qemu.sh "$ELF" > "$OUT/reporting.stdout" || {
+    echo "firmware failed: exit code $?" >&2; exit 1; }
+  # The reporting build prints its report (the panic-never build compiles it out): proves $ELF is not
+  # the panic-never build, so the comparison below is between two different programs.
+  grep -qx done "$OUT/reporting.stdout" || {
+    echo "the reporting build printed no \`done\` line: is $ELF the panic-never build?" >&2; exit 1; }
+  cmp "$OUT/uart-panic-never.bin" "$OUT/uart-reporting.bin" || {
+    echo "the panic-never build streams different bytes from the reporting build" >&2; exit 1; }
+  echo "panic-never ok: links, runs, streams the same $(wc -c < "$OUT/uart-panic-never.bin") bytes"
+  exit 0
+fi
 
 # ---- size: allocated sections only (debug sections and paths never enter the golden file)
 "$LLVM_BIN/llvm-size" -A -d "$ELF" | awk '

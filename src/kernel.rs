@@ -84,7 +84,7 @@ impl<const CAP: usize> KernelLut<CAP> {
             }
         };
         let weight = |cell: usize, o: Offset| -> f32 {
-            let c = usize::from(cells);
+            let c = usize::from(cells).max(1); // validated ≥ 1; `max` keeps a `%`-by-zero panic out
             let idx = [cell % c, (cell / c) % c, cell / (c * c)];
             let mut d2 = 0.0f32;
             for axis in 0..3 {
@@ -118,14 +118,18 @@ impl<const CAP: usize> KernelLut<CAP> {
                 *d = j as u16 + 1;
             }
         }
-        for c in 0..n_cells {
-            for j in 0..self.offsets.len() {
-                let w = weight(c, self.offsets[j]);
-                if self.weights.push(w).is_err() {
-                    *self = Self::EMPTY;
-                    return Err(ConfigError::LutCapacity);
+        let mut full = false;
+        'fill: for c in 0..n_cells {
+            for &o in &self.offsets {
+                if self.weights.push(weight(c, o)).is_err() {
+                    full = true;
+                    break 'fill;
                 }
             }
+        }
+        if full {
+            *self = Self::EMPTY;
+            return Err(ConfigError::LutCapacity);
         }
         self.reach = reach;
         self.cells = cells;
@@ -195,7 +199,8 @@ impl<const CAP: usize> KernelLut<CAP> {
         let k = key.as_array();
         for axis in (0..3).rev() {
             let frac = position[axis] * self.inv_voxel_size - k[axis] as f32;
-            let i = ((frac / self.cell_size) as i32).clamp(0, c - 1);
+            // max/min rather than `clamp`, whose min ≤ max assertion would link a panic.
+            let i = ((frac / self.cell_size) as i32).max(0).min(c - 1);
             cell = cell * c + i;
         }
         cell as u16

@@ -266,20 +266,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
 
     // ----- index -------------------------------------------------------------------------------------
 
+    // Table positions come from `home` and `next`, always below TABLE; `get` keeps bounds-check panics
+    // out of the firmware (an out-of-range position would read as empty and ignore writes).
     #[inline]
     fn entry(&self, i: usize) -> u16 {
-        if i < CAP {
-            self.index[0][i]
-        } else {
-            self.index[1][i - CAP]
-        }
+        self.index.as_flattened().get(i).copied().unwrap_or(0)
     }
     #[inline]
     fn set_entry(&mut self, i: usize, v: u16) {
-        if i < CAP {
-            self.index[0][i] = v;
-        } else {
-            self.index[1][i - CAP] = v;
+        if let Some(e) = self.index.as_flattened_mut().get_mut(i) {
+            *e = v;
         }
     }
     #[inline]
@@ -305,7 +301,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 return None;
             }
             let s = usize::from(e - 1);
-            if self.slots[s].key == w {
+            if self.slots.get(s).is_some_and(|slot| slot.key == w) {
                 return Some((i, s));
             }
             i = Self::next(i);
@@ -331,7 +327,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             if e == 0 {
                 return;
             }
-            let home = Self::home(unwrap(self.slots[usize::from(e - 1)].key, self.centre));
+            // (An out-of-range entry, which the map never writes, reads as staying put.)
+            let home = self
+                .slots
+                .get(usize::from(e - 1))
+                .map_or(j, |slot| Self::home(unwrap(slot.key, self.centre)));
             // The entry at j may fill the hole unless its home lies cyclically in (hole, j].
             let stays = if hole <= j {
                 hole < home && home <= j
@@ -348,13 +348,22 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
 
     // ----- slots -------------------------------------------------------------------------------------
 
+    // Slot numbers come from the map's own index and hands, so they are always below CAP; the accessors
+    // below still go through `get` so that no bounds-check panic is linked into the hot path (the
+    // firmware's `panic-never` build proves it). An out-of-range number reads as an unpinned empty slot.
+
     fn pinned(&self, s: usize) -> bool {
-        let e = self.slots[s].flags >> EPOCH_SHIFT;
+        let e = self
+            .slots
+            .get(s)
+            .map_or(0, |slot| slot.flags >> EPOCH_SHIFT);
         e != 0 && e == self.epoch
     }
 
     fn unpin(&mut self, s: usize) {
-        self.slots[s].flags &= OCCUPIED | REFERENCED;
+        if let Some(slot) = self.slots.get_mut(s) {
+            slot.flags &= OCCUPIED | REFERENCED;
+        }
     }
 
     /// Start a flush round: a new pin epoch. Epochs run 1..=63; when they wrap, stale pins (targets of a
@@ -372,7 +381,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
     fn evict_slot<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
-        let slot = self.slots[s];
+        let Some(&slot) = self.slots.get(s) else {
+            return false;
+        };
         let key = unwrap(slot.key, self.centre);
         // A voxel holding only the prior (its batch was refused) carries no observation: free it quietly.
         if slot.voxel.lambda > self.prior.lambda {
@@ -391,7 +402,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         if let Some((pos, _)) = self.find(key) {
             self.index_remove(pos);
         }
-        self.slots[s] = Slot::EMPTY;
+        if let Some(freed) = self.slots.get_mut(s) {
+            *freed = Slot::EMPTY;
+        }
         self.len -= 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
         true
@@ -401,7 +414,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     fn alloc<S: EvictionSink<D>>(&mut self, k: VoxelKey, sink: &mut S) -> Result<usize, NoSlot> {
         let s = if self.len < CAP {
             let mut s = self.free_hand;
-            while self.slots[s].flags & OCCUPIED != 0 {
+            while self
+                .slots
+                .get(s)
+                .is_some_and(|slot| slot.flags & OCCUPIED != 0)
+            {
                 s = if s + 1 == CAP { 0 } else { s + 1 };
             }
             self.free_hand = if s + 1 == CAP { 0 } else { s + 1 };
@@ -414,8 +431,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 if self.pinned(s) {
                     continue;
                 }
-                if self.slots[s].flags & REFERENCED != 0 {
-                    self.slots[s].flags &= !REFERENCED;
+                let Some(slot) = self.slots.get_mut(s) else {
+                    continue;
+                };
+                if slot.flags & REFERENCED != 0 {
+                    slot.flags &= !REFERENCED;
                     continue;
                 }
                 found = if self.evict_slot(s, sink) {
@@ -427,7 +447,10 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             }
             found?
         };
-        self.slots[s] = Slot {
+        let Some(slot) = self.slots.get_mut(s) else {
+            return Err(NoSlot::Pinned);
+        };
+        *slot = Slot {
             voxel: self.prior_code,
             key: wrap(k),
             residency: self.next_residency as u16,
@@ -574,13 +597,24 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                     cell,
                     sums: BatchSums::EMPTY,
                 };
-                // Cannot fail: the scratch was just emptied if it was full.
-                let _ = self.groups.push(group);
+                // Cannot fail: the scratch was just emptied if it was full. Should it, the point is
+                // refused and counted, never added to another group.
+                if self.groups.push(group).is_err() {
+                    self.rejections.count(Rejection::NoRoom);
+                    return Err(Rejection::NoRoom);
+                }
                 self.groups.len() - 1
             }
         };
         self.last_group = g;
-        self.groups[g].sums.add_point(feature);
+        match self.groups.get_mut(g) {
+            Some(group) => group.sums.add_point(feature),
+            None => {
+                // Unreachable: `g` was just found or pushed.
+                self.rejections.count(Rejection::NoRoom);
+                return Err(Rejection::NoRoom);
+            }
+        }
         self.counters.points = self.counters.points.saturating_add(1);
         Ok(())
     }
@@ -602,9 +636,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             self.absorb_placed(placed);
             // Drop the applied prefix, keeping the waiting groups in order.
             let n = self.groups.len();
-            for i in placed..n {
-                self.groups.swap(i - placed, i);
-            }
+            let placed = placed.min(n);
+            self.groups.copy_within(placed.., 0);
             self.groups.truncate(n - placed);
         }
     }
@@ -612,8 +645,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     /// Pass A: pin slots for groups from the front; returns how many are placed.
     fn place_groups<S: EvictionSink<D>>(&mut self, sink: &mut S) -> usize {
         let mut placed = 0;
-        while placed < self.groups.len() {
-            let (key, cell) = (self.groups[placed].key, self.groups[placed].cell);
+        while let Some(&Group { key, cell, .. }) = self.groups.get(placed) {
             let mut result = Ok(());
             for j in 0..self.lut.offsets().len() {
                 if self.lut.weights(cell).get(j).copied().unwrap_or(0.0) <= 0.0 {
@@ -622,8 +654,10 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 let t = key.offset(self.lut.offsets()[j]);
                 match self.find(t) {
                     Some((_, s)) => {
-                        let f = &mut self.slots[s].flags;
-                        *f = (*f & (OCCUPIED | REFERENCED)) | (self.epoch << EPOCH_SHIFT);
+                        if let Some(slot) = self.slots.get_mut(s) {
+                            let f = &mut slot.flags;
+                            *f = (*f & (OCCUPIED | REFERENCED)) | (self.epoch << EPOCH_SHIFT);
+                        }
                     }
                     None => {
                         if let Err(e) = self.alloc(t, sink) {
@@ -637,10 +671,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 Ok(()) => placed += 1,
                 Err(NoSlot::Pinned) if placed > 0 => break,
                 Err(_) => {
-                    let n = self.groups[placed].sums.weight as u32;
-                    self.rejections.no_room = self.rejections.no_room.saturating_add(n);
-                    self.counters.points = self.counters.points.saturating_sub(n);
-                    self.groups.remove(placed);
+                    // Refuse the group: count its points, close the gap (a memmove, not a ~0.5 KB
+                    // group on the stack as `Vec::remove` would return).
+                    let len = self.groups.len();
+                    if placed < len {
+                        let n = self.groups[placed].sums.weight as u32;
+                        self.rejections.no_room = self.rejections.no_room.saturating_add(n);
+                        self.counters.points = self.counters.points.saturating_sub(n);
+                        self.groups.copy_within(placed + 1.., placed);
+                        self.groups.truncate(len - 1);
+                    }
                 }
             }
         }
@@ -653,7 +693,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     /// it would have visited it), and is re-encoded once.
     fn absorb_placed(&mut self, placed: usize) {
         for g in 0..placed {
-            let (key, cell) = (self.groups[g].key, self.groups[g].cell);
+            let Some(&Group { key, cell, .. }) = self.groups.get(g) else {
+                break;
+            };
             for j in 0..self.lut.offsets().len() {
                 if self.lut.weights(cell).get(j).copied().unwrap_or(0.0) <= 0.0 {
                     continue;
@@ -666,7 +708,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 self.unpin(s);
                 // The target's batch: every placed group in reach, through its kernel weight.
                 let mut first = true;
-                for grp in &self.groups[g..placed] {
+                for grp in self.groups.get(g..placed).unwrap_or_default() {
                     let w = self.lut.weight_at(
                         grp.cell,
                         t.x - grp.key.x,
@@ -686,9 +728,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                     continue; // unreachable: group g reaches t
                 }
                 let mass = self.batch.weight;
-                self.slots[s].voxel.decode_into(&mut self.scratch);
+                let Some(slot) = self.slots.get_mut(s) else {
+                    continue; // unreachable: `find` returned it
+                };
+                slot.voxel.decode_into(&mut self.scratch);
                 self.scratch.absorb_sums(&self.batch);
-                let slot = &mut self.slots[s];
                 slot.voxel = slot.voxel.reencode(&self.scratch, &mut self.dither);
                 slot.unsent = f16::from_f32(slot.unsent.to_f32() + mass);
                 slot.flags |= REFERENCED;
@@ -705,7 +749,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         if !Self::wrap_safe(key, self.centre) {
             return None; // its wrapped form could alias a resident key
         }
-        self.find(key).map(|(_, s)| self.slots[s].voxel.decode())
+        self.find(key)
+            .and_then(|(_, s)| self.slots.get(s))
+            .map(|slot| slot.voxel.decode())
     }
 
     /// Every held voxel, decoded.
@@ -741,8 +787,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
 
     /// Mark a voxel as streamed: its unsent mass returns to zero.
     pub fn mark_sent(&mut self, key: VoxelKey) {
-        if let Some((_, s)) = self.find(key) {
-            self.slots[s].unsent = f16::ZERO;
+        if let Some(slot) = self.find(key).and_then(|(_, s)| self.slots.get_mut(s)) {
+            slot.unsent = f16::ZERO;
         }
     }
 

@@ -19,6 +19,7 @@
 
 use crate::batch::RejectionCounts;
 use crate::config::{ConfigError, KernelMode, MapConfig, Prior};
+use crate::f32math::sin_cos;
 use crate::frame::{EncoderSettings, FrameEncoder, TickError};
 use crate::key::to_map_frame;
 use crate::local_map::{Counters, LocalMap};
@@ -58,23 +59,6 @@ pub fn normal(h: u32) -> f32 {
     let s = (h & 0xFF) + (h >> 8 & 0xFF) + (h >> 16 & 0xFF) + (h >> 24);
     // Mean 4 · 127.5 = 510; variance 4 · (256² − 1) / 12 = 21,845, σ = 147.80.
     (s as f32 - 510.0) * (1.0 / 147.800_54)
-}
-
-/// sin and cos of `x` (|x| ≤ 8π) in f32 arithmetic only (libm's `sinf`/`cosf` evaluate in f64, which a
-/// Cortex-M4F emulates in software): reduction to [−π/4, π/4] and Taylor polynomials, error < 1e-6.
-pub fn sin_cos(x: f32) -> (f32, f32) {
-    use core::f32::consts::FRAC_PI_2;
-    let q = libm::floorf(x * (1.0 / FRAC_PI_2) + 0.5);
-    let r = x - q * FRAC_PI_2;
-    let r2 = r * r;
-    let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0))));
-    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0))));
-    match (q as i32) & 3 {
-        0 => (s, c),
-        1 => (c, -s),
-        2 => (-s, -c),
-        _ => (-c, s),
-    }
 }
 
 /// 1/√D by Newton's method, usable in `const` context.
@@ -707,16 +691,6 @@ mod tests {
     use crate::config::MapConfig;
     use crate::quant::packed_len;
     use crate::sink::Evicted;
-
-    #[test]
-    fn sin_cos_is_accurate() {
-        for i in -2000..=2000 {
-            let x = i as f32 * 0.0123;
-            let (s, c) = sin_cos(x);
-            assert!((f64::from(s) - f64::from(x).sin()).abs() < 2e-6, "sin {x}");
-            assert!((f64::from(c) - f64::from(x).cos()).abs() < 2e-6, "cos {x}");
-        }
-    }
 
     #[test]
     fn normal_has_unit_moments() {

@@ -15,6 +15,7 @@
 
 use crate::config::{ConfigError, KernelMode, MapConfig, Prior};
 use crate::decode::Pca;
+use crate::f32math;
 use crate::key::VoxelKey;
 use crate::stats::VoxelStats;
 use core::num::NonZeroUsize;
@@ -440,7 +441,8 @@ fn hadamard<const D: usize>(v: &mut [f32; D]) -> f32 {
 // The summary codec runs once per voxel sent, not per point: its loops over D stay loops instead of being
 // unrolled D times into flash (≈ 6 KB at D = 64). They take slices, are not inlined, and hide the length
 // (a constant everywhere, which the optimizer would propagate) behind `black_box`; only code size and a
-// few instructions per voxel depend on that, never a result.
+// few instructions per voxel depend on that, never a result. Maxima are comparisons, not `f32::max`,
+// which thumbv7em lowers to a call to `fmaxf` per element.
 
 /// `v *= k`, element-wise; returns the largest |v| after it (NaN entries ignored; 0 for none).
 #[inline(never)]
@@ -449,7 +451,10 @@ fn scale_all(v: &mut [f32], k: f32) -> f32 {
     let mut peak = 0.0f32;
     for x in v {
         *x *= k;
-        peak = peak.max(libm::fabsf(*x));
+        let a = libm::fabsf(*x);
+        if a > peak {
+            peak = a;
+        }
     }
     peak
 }
@@ -459,31 +464,39 @@ fn scale_all(v: &mut [f32], k: f32) -> f32 {
 fn max_or_zero(values: &[f32]) -> f32 {
     core::hint::black_box(values)
         .iter()
-        .fold(0.0f32, |a, &v| a.max(v))
+        .fold(0.0f32, |a, &v| if v > a { v } else { a })
 }
 
 /// log₂ steps per code of the μ scale and of Ψ's largest entry.
-const SCALE_STEPS_PER_OCTAVE: f32 = 8.0;
+const SCALE_STEPS_PER_OCTAVE: u32 = 8;
 /// Code 0 means "zero"; code c ≥ 1 means 2^((c − SCALE_OFFSET) / 8).
-const SCALE_OFFSET: f32 = 128.0;
-const PSI_OFFSET: f32 = 96.0;
+const SCALE_OFFSET: i32 = 128;
+const PSI_OFFSET: i32 = 96;
 /// Ψ's geometric mean relative to its maximum: 2^(−c/16).
-const GEO_STEPS_PER_OCTAVE: f32 = 16.0;
+const GEO_STEPS_PER_OCTAVE: u32 = 16;
 /// Ψ's block means relative to its maximum: 2^(−c/2), c = 0..=15.
-const BLOCK_STEPS_PER_OCTAVE: f32 = 2.0;
+const BLOCK_STEPS_PER_OCTAVE: u32 = 2;
+
+// Powers and logarithms come from `f32math` (f32 only; libm's `log2f`/`exp2f` evaluate in f64, soft-float
+// on the device): codes are exact with respect to the decoder's values, `log_value(log_code_up(x)) ≥ x`.
 
 /// Smallest code whose value is ≥ x (x > 0), in 1..=255.
-fn log_code_up(x: f32, offset: f32) -> u8 {
-    let c = libm::ceilf(libm::log2f(x) * SCALE_STEPS_PER_OCTAVE + offset);
-    c.clamp(1.0, 255.0) as u8
+fn log_code_up(x: f32, offset: i32) -> u8 {
+    let c = f32math::log2_steps_up(x, SCALE_STEPS_PER_OCTAVE).saturating_add(offset);
+    c.clamp(1, 255) as u8
 }
 
-fn log_value(code: u8, offset: f32) -> f32 {
+fn log_value(code: u8, offset: i32) -> f32 {
     if code == 0 {
         0.0
     } else {
-        libm::exp2f((f32::from(code) - offset) / SCALE_STEPS_PER_OCTAVE)
+        f32math::pow2_steps(i32::from(code) - offset, SCALE_STEPS_PER_OCTAVE)
     }
+}
+
+/// The nearest whole number of `steps`-per-octave steps in log₂ `ratio` (ratio ≥ 1), clamped to 0..=top.
+fn ratio_steps(log_ratio: f32, steps: u32, top: u8) -> u8 {
+    libm::roundf(log_ratio * steps as f32).clamp(0.0, f32::from(top)) as u8
 }
 
 fn block_range(dim: usize, blocks: NonZeroUsize, b: usize) -> core::ops::Range<usize> {
@@ -550,25 +563,31 @@ pub fn encode_codes<const D: usize>(
         let max_code = log_code_up(psi_max, PSI_OFFSET);
         *max_byte = max_code;
         let sent_max = log_value(max_code, PSI_OFFSET);
-        let log_sent_max = libm::log2f(sent_max);
+        let log_sent_max = f32math::log2(sent_max);
         // Geometric mean (entries ≤ 0 count as the smallest code's value).
-        let floor = sent_max * libm::exp2f(-255.0 / GEO_STEPS_PER_OCTAVE);
+        let floor = sent_max * f32math::pow2_steps(-255, GEO_STEPS_PER_OCTAVE);
         let mean_log = stats
             .psi
             .iter()
-            .map(|&p| libm::log2f(p.max(floor)))
+            .map(|&p| f32math::log2(if p > floor { p } else { floor }))
             .sum::<f32>()
             / D as f32;
-        let geo = libm::roundf((log_sent_max - mean_log) * GEO_STEPS_PER_OCTAVE);
-        *geo_byte = geo.clamp(0.0, 255.0) as u8;
+        *geo_byte = ratio_steps(log_sent_max - mean_log, GEO_STEPS_PER_OCTAVE, 255);
         for b in 0..blocks.get() {
             let r = block_range(D, blocks, b);
             let n = r.len().max(1) as f32;
             let block = stats.psi.get(r).unwrap_or_default();
-            let mean = block.iter().map(|p| p.max(0.0)).sum::<f32>() / n;
+            let mean = block
+                .iter()
+                .map(|&p| if p > 0.0 { p } else { 0.0 })
+                .sum::<f32>()
+                / n;
             let c = if mean > 0.0 {
-                libm::roundf((log_sent_max - libm::log2f(mean)) * BLOCK_STEPS_PER_OCTAVE)
-                    .clamp(0.0, 15.0) as u8
+                ratio_steps(
+                    log_sent_max - f32math::log2(mean),
+                    BLOCK_STEPS_PER_OCTAVE,
+                    15,
+                )
             } else {
                 15
             };
@@ -608,12 +627,13 @@ pub fn decode_codes<const D: usize>(
     }
     let psi_at = 1 + (D * bits).div_ceil(8);
     let psi_max = log_value(bytes[psi_at], PSI_OFFSET);
-    let psi_geo = psi_max * libm::exp2f(-f32::from(bytes[psi_at + 1]) / GEO_STEPS_PER_OCTAVE);
+    let psi_geo =
+        psi_max * f32math::pow2_steps(-i32::from(bytes[psi_at + 1]), GEO_STEPS_PER_OCTAVE);
     let mut psi = [0.0f32; D];
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
     for b in 0..blocks.get() {
         let c = bytes[psi_at + 2 + b / 2] >> (4 * (b % 2)) & 0x0f;
-        let v = psi_max * libm::exp2f(-f32::from(c) / BLOCK_STEPS_PER_OCTAVE);
+        let v = psi_max * f32math::pow2_steps(-i32::from(c), BLOCK_STEPS_PER_OCTAVE);
         for p in &mut psi[block_range(D, blocks, b)] {
             *p = v;
         }
