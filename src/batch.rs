@@ -1,18 +1,19 @@
 //! From sensor points to voxel updates: validation, location, grouping, spreading.
 //!
-//! A batch is integrated in two steps that both maps (the f32 reference map on the host and the quantized
-//! on-device map) share:
-//! 1. [`locate`] each map-frame point: reject non-finite or out-of-range input (counted, never stored) and
-//!    find its voxel and sub-cell. Points with the same voxel and sub-cell have identical kernel weights to
-//!    every neighbour, so they are grouped into one moment ([`VoxelStats::absorb_point`], Welford).
-//! 2. [`spread`] each group to the neighbours in the kernel table: target voxel t receives the group's
-//!    moments scaled by k(s → t). Chan's combination makes this exactly the paper's per-point batch sums.
+//! A batch is integrated in two steps:
+//! 1. [`locate`] each map-frame point (both maps): reject non-finite or out-of-range input (counted, never
+//!    stored) and find its voxel and sub-cell. Points with the same voxel and sub-cell have identical
+//!    kernel weights to every neighbour, so they are grouped.
+//! 2. Spread each group to the neighbours in the kernel table: target voxel t receives the group scaled by
+//!    k(s → t). The f32 reference map groups into Welford moments ([`crate::VoxelStats::absorb_point`]) and uses
+//!    [`spread`]; the on-device map groups raw sums ([`crate::BatchSums`], no division per point) and asks
+//!    [`KernelLut::weight_at`] per target. Both are exactly the paper's per-point batch sums (Chan's
+//!    combination; the equivalence tests check it).
 //!
 //! Grouping turns "points × f³" into "occupied voxels × f³", the main saving on dense scans.
 
 use crate::kernel::KernelLut;
 use crate::key::{KeyError, VoxelKey};
-use crate::stats::VoxelStats;
 
 /// Largest accepted |feature component|. Network features (PCA-compressed CLIP/LSeg) are O(1–100); the
 /// on-device map stores μ with a per-voxel f16 scale (at most 65504 × 31 ≈ 2·10⁶ with its headroom) and Ψ
@@ -29,10 +30,13 @@ pub enum Rejection {
     NonFiniteFeature,
     /// Its position is too far from the map origin for a voxel key.
     KeyOutOfRange,
-    /// The map had no room for the voxels it reaches (pool full and the eviction sink refusing).
+    /// The map had no room for the voxels it reaches (pool full and the eviction sink refusing, or a map
+    /// that was never configured).
     NoRoom,
     /// The point lies outside the local map's window around the robot.
     OutsideWindow,
+    /// A batch had more points than features or more features than points: the unpaired ones.
+    Unpaired,
 }
 
 /// Counts of rejected points, by reason. Every point handed to a map is either integrated or counted here.
@@ -49,6 +53,8 @@ pub struct RejectionCounts {
     pub no_room: u32,
     /// Points outside the local map's window.
     pub outside_window: u32,
+    /// Points or features without a partner in their batch.
+    pub unpaired: u32,
 }
 
 impl RejectionCounts {
@@ -60,6 +66,7 @@ impl RejectionCounts {
             Rejection::KeyOutOfRange => &mut self.key_out_of_range,
             Rejection::NoRoom => &mut self.no_room,
             Rejection::OutsideWindow => &mut self.outside_window,
+            Rejection::Unpaired => &mut self.unpaired,
         };
         *c = c.saturating_add(1);
     }
@@ -71,6 +78,7 @@ impl RejectionCounts {
             .saturating_add(self.key_out_of_range)
             .saturating_add(self.no_room)
             .saturating_add(self.outside_window)
+            .saturating_add(self.unpaired)
     }
 }
 
@@ -119,15 +127,6 @@ pub fn spread<const CAP: usize>(
             apply(source.offset(o), k);
         }
     }
-}
-
-/// Kernel mass a group spreads: Σ over neighbours of k · n (for conservation checks and budgets).
-pub fn spread_mass<const D: usize, const CAP: usize>(
-    lut: &KernelLut<CAP>,
-    cell: u16,
-    group: &VoxelStats<D>,
-) -> f32 {
-    lut.weights(cell).iter().sum::<f32>() * group.lambda
 }
 
 #[cfg(test)]

@@ -442,7 +442,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                     if count == u16::MAX {
                         break;
                     }
-                    if !v.stats.is_finite() {
+                    if !sendable(&v.stats) {
                         live.next();
                         from_live += 1;
                         continue;
@@ -478,7 +478,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                 }
             }
             if count == 0 {
-                report.live_sent += from_live; // only skipped (non-finite) items
+                report.live_sent += from_live; // only skipped (unsendable) items
                 break;
             }
             let Ok(n) = self.build_voxels(count, used) else {
@@ -502,11 +502,17 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 }
 
+/// Whether a summary of these statistics is one the decoder accepts (finite, λ > 0): the encoder never
+/// sends what the base station would refuse — a refused summary takes its whole frame with it.
+fn sendable<const D: usize>(stats: &VoxelStats<D>) -> bool {
+    stats.is_finite() && stats.lambda > 0.0
+}
+
 impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameEncoder<D, QB, N> {
     /// Quantize the voxel into the queue now; refuse when the queue is full (or there is no session). A
     /// non-finite voxel is counted as invalid and dropped (the map must not keep retrying it).
     fn evict(&mut self, voxel: Evicted<'_, D>) -> Result<(), SinkFull> {
-        if !voxel.stats.is_finite() || !(voxel.stats.lambda > 0.0) {
+        if !sendable(voxel.stats) {
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
         }
@@ -897,6 +903,47 @@ mod tests {
             "{r:?}"
         );
         assert!(r.bytes <= budget);
+    }
+
+    #[test]
+    fn live_voxels_the_decoder_would_refuse_are_skipped_not_sent() {
+        // λ = 0 (a slot holding only the prior) and NaN among good live voxels: a sent one would make the
+        // base station refuse the whole frame, final summaries included.
+        let mut enc = Enc::new(config(), EncoderSettings::new(1, 2)).unwrap();
+        enc.evict(live(VoxelKey::new(0, 0, 0), &voxel(1), 1)).unwrap();
+        let mut lives: [VoxelStats<8>; 6] = core::array::from_fn(|i| voxel(i as i32));
+        lives[1].lambda = 0.0;
+        lives[4].mean[2] = f32::NAN;
+        let mut out = Buf {
+            data: [0; 8192],
+            len: 0,
+        };
+        let r = enc
+            .tick(
+                &mut out,
+                10_000,
+                lives
+                    .iter()
+                    .enumerate()
+                    .map(|(i, s)| live(VoxelKey::new(i as i32, 1, 0), s, 10 + i as u32)),
+            )
+            .unwrap();
+        assert_eq!((r.evicted_sent, r.live_sent), (1, 6), "{r:?}");
+        let mut dec = FrameDecoder::<256>::new();
+        let mut input = &out.data[..out.len];
+        let mut live_keys = heapless::Vec::<i32, 8>::new();
+        while let Feed::Frame { body, rest } = dec.feed(input) {
+            if let (_, Message::Voxels(b)) = parse_body(body).unwrap() {
+                for s in b.iter::<8>(SummaryCodec::DEFAULT) {
+                    let s = s.expect("every summary sent is one the decoder accepts");
+                    if !s.is_final {
+                        live_keys.push(s.key.x).unwrap();
+                    }
+                }
+            }
+            input = rest;
+        }
+        assert_eq!(live_keys.as_slice(), &[0, 2, 3, 5]);
     }
 
     #[test]

@@ -57,6 +57,9 @@ impl<const D: usize> VoxelStats<D> {
 
     /// Draw one feature from the posterior predictive Student-t into `out`. Returns `false` (and leaves
     /// `out` alone) when λ ≤ 0, where the predictive is undefined.
+    ///
+    /// Not on the device path: `rand_distr` draws its f32 normal and χ² variates through f64. Sampling
+    /// uncertainty is an evaluation tool (host-sim); the firmware never links it.
     pub fn sample_predictive<R: RngCore + ?Sized>(&self, rng: &mut R, out: &mut [f32; D]) -> bool {
         let (Some(f), Ok(chi)) = (self.scale_factor(), ChiSquared::new(self.lambda)) else {
             return false;
@@ -92,7 +95,9 @@ impl<const D: usize> VoxelStats<D> {
         let mut draw = [0.0f32; D];
         let mut best_stats = (0.0f32, 0.0f32); // Welford of the best category, even if it does not fit `n`
         for s in 1..=samples {
-            self.sample_predictive(rng, &mut draw);
+            if !self.sample_predictive(rng, &mut draw) {
+                return None; // unreachable: λ > 0 was checked above
+            }
             codebook.scores(&draw, &mut scores);
             let inv = 1.0 / s as f32;
             for c in 0..n {

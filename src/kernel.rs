@@ -143,7 +143,7 @@ impl<const CAP: usize> KernelLut<CAP> {
         &self.offsets
     }
 
-    /// Weights of [`Self::offsets`] for a point in sub-cell `cell` (always 0 in voxel-offset mode).
+    /// Weights of [`Self::offsets`] for a point in sub-cell `cell` (`cell` is always 0 in voxel-offset mode).
     /// An out-of-range cell gives an empty slice.
     pub fn weights(&self, cell: u16) -> &[f32] {
         let n = self.offsets.len();

@@ -46,7 +46,10 @@ const EPOCH_MAX: u8 = 0x3F;
 struct Slot<const D: usize, const P: usize> {
     voxel: QuantVoxel<D, P>,
     key: [i16; 3],
-    residency: u16,
+    /// Full width, as [`Evicted::residency`] promises: the base station tells contributions of one voxel
+    /// apart by it, so a 16-bit number would repeat after 65,536 allocations and a later residency of the
+    /// same voxel could be taken for an earlier, closed one and dropped.
+    residency: u32,
     /// Kernel mass absorbed since the voxel was last streamed (for "most changed first").
     unsent: f16,
     flags: u8,
@@ -82,7 +85,7 @@ struct Group<const D: usize> {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Counters {
-    /// Points integrated.
+    /// Points integrated, modulo 2³² (wrapping, so differences stay right on a robot that runs for days).
     pub points: u32,
     /// Voxels handed to the sink (voxels holding only the prior are freed without it).
     pub evicted: u32,
@@ -193,6 +196,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             key_out_of_range: 0,
             no_room: 0,
             outside_window: 0,
+            unpaired: 0,
         },
         counters: Counters {
             points: 0,
@@ -351,6 +355,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     // Slot numbers come from the map's own index and hands, so they are always below CAP; the accessors
     // below still go through `get` so that no bounds-check panic is linked into the hot path (the
     // firmware's `panic-never` build proves it). An out-of-range number reads as an unpinned empty slot.
+    // Plain indexing remains only where the bound is visible to the optimiser (loops over `0..CAP`, a
+    // position checked against `len` just before), which links no panic either.
 
     fn pinned(&self, s: usize) -> bool {
         let e = self
@@ -391,7 +397,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             let evicted = Evicted {
                 key,
                 stats: &self.scratch,
-                residency: u32::from(slot.residency),
+                residency: slot.residency,
             };
             if sink.evict(evicted).is_err() {
                 self.counters.refused = self.counters.refused.saturating_add(1);
@@ -453,7 +459,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         *slot = Slot {
             voxel: self.prior_code,
             key: wrap(k),
-            residency: self.next_residency as u16,
+            residency: self.next_residency,
             unsent: f16::ZERO,
             flags: OCCUPIED | REFERENCED | (self.epoch << EPOCH_SHIFT),
         };
@@ -551,6 +557,10 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             // A refusal is counted in `rejections`; nothing else to do here.
             let _ = self.add_point(to_map_frame(pose, *p), y, sink);
         }
+        // A point without a feature (or a feature without a point) is counted, never silently dropped.
+        for _ in 0..points.len().abs_diff(features.len()) {
+            self.rejections.count(Rejection::Unpaired);
+        }
         self.end_batch(sink);
         // Points the map took: accepted into the batch and not refused when their group was applied.
         self.counters.points.wrapping_sub(before) as usize
@@ -565,6 +575,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         feature: &[f32; D],
         sink: &mut S,
     ) -> Result<(), Rejection> {
+        if self.lut.offsets().is_empty() {
+            // Not configured (`EMPTY`): there is no kernel to spread the point with, so no room for it.
+            self.rejections.count(Rejection::NoRoom);
+            return Err(Rejection::NoRoom);
+        }
         let located = locate(&self.lut, position, feature).and_then(|(key, cell)| {
             if self.in_window(key) {
                 Ok((key, cell))
@@ -615,7 +630,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 return Err(Rejection::NoRoom);
             }
         }
-        self.counters.points = self.counters.points.saturating_add(1);
+        self.counters.points = self.counters.points.wrapping_add(1);
         Ok(())
     }
 
@@ -677,7 +692,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                     if placed < len {
                         let n = self.groups[placed].sums.weight as u32;
                         self.rejections.no_room = self.rejections.no_room.saturating_add(n);
-                        self.counters.points = self.counters.points.saturating_sub(n);
+                        self.counters.points = self.counters.points.wrapping_sub(n);
                         self.groups.copy_within(placed + 1.., placed);
                         self.groups.truncate(len - 1);
                     }
@@ -762,7 +777,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             .map(|s| LiveVoxel {
                 key: unwrap(s.key, self.centre),
                 stats: s.voxel.decode(),
-                residency: u32::from(s.residency),
+                residency: s.residency,
                 unsent: s.unsent.to_f32(),
             })
     }
@@ -770,23 +785,24 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     /// The held voxel with the most kernel mass absorbed since it was last marked sent (for streaming the
     /// most changed voxels first); `None` if nothing changed.
     pub fn most_changed(&self) -> Option<LiveVoxel<D>> {
-        let (s, slot) = self
+        let slot = self
             .slots
             .iter()
-            .enumerate()
-            .filter(|(_, s)| s.flags & OCCUPIED != 0 && s.unsent.to_f32() > 0.0)
-            .max_by(|a, b| a.1.unsent.to_f32().total_cmp(&b.1.unsent.to_f32()))?;
-        let _ = s;
+            .filter(|s| s.flags & OCCUPIED != 0 && s.unsent.to_f32() > 0.0)
+            .max_by(|a, b| a.unsent.to_f32().total_cmp(&b.unsent.to_f32()))?;
         Some(LiveVoxel {
             key: unwrap(slot.key, self.centre),
             stats: slot.voxel.decode(),
-            residency: u32::from(slot.residency),
+            residency: slot.residency,
             unsent: slot.unsent.to_f32(),
         })
     }
 
     /// Mark a voxel as streamed: its unsent mass returns to zero.
     pub fn mark_sent(&mut self, key: VoxelKey) {
+        if !Self::wrap_safe(key, self.centre) {
+            return; // its wrapped form could alias a resident key
+        }
         if let Some(slot) = self.find(key).and_then(|(_, s)| self.slots.get_mut(s)) {
             slot.unsent = f16::ZERO;
         }

@@ -18,10 +18,11 @@ use half::f16;
 
 // Widths chosen by measurement on the real LiDAR tile (host-sim/tests/local_map_accuracy.rs, D = 64,
 // median relative error of the per-dimension predictive variance with the default / a weak prior; argmax
-// agreement ≥ 99.96 % in every case):
-//   μ 8 + Ψ 8 bits: 152 B/voxel, 1.1 % / 0.6 %      μ 6 + Ψ 5 (4 steps/octave): 112 B, 1.9 % / 2.3 %
-//   μ 6 + Ψ 5 (8 steps/octave, 4 octaves): 112 B, 1.6 % / 3.7 % with a 2.8 % trace bias (range clamping)
-//   μ 5 + Ψ 4: 96 B, 1.9 % / 6.5 %                   μ 4 + Ψ 5: 96 B, 1.8 % / 9.3 % (μ noise feeds Ψ)
+// agreement ≥ 99.96 % in every case; bytes per voxel with the slot's 32-bit residency number — measured
+// when it was 16 bits, which made every layout 4 B smaller):
+//   μ 8 + Ψ 8 bits: 156 B/voxel, 1.1 % / 0.6 %      μ 6 + Ψ 5 (4 steps/octave): 116 B, 1.9 % / 2.3 %
+//   μ 6 + Ψ 5 (8 steps/octave, 4 octaves): 116 B, 1.6 % / 3.7 % with a 2.8 % trace bias (range clamping)
+//   μ 5 + Ψ 4: 100 B, 1.9 % / 6.5 %                  μ 4 + Ψ 5: 100 B, 1.8 % / 9.3 % (μ noise feeds Ψ)
 /// Bits per μ code (signed).
 pub const MU_BITS: u32 = 6;
 /// Bits per Ψ code.

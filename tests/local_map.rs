@@ -187,6 +187,27 @@ fn bad_points_are_counted_and_never_stored() {
 }
 
 #[test]
+fn unpaired_points_and_an_unconfigured_map_are_counted() {
+    // More points than features, then more features than points: the extras are counted, the pairs taken.
+    let mut map = boxed::<256>(3.0);
+    let mut sink = Collect::default();
+    let pts = [[0.05f32, 0.05, 0.05]; 5];
+    let feats = [[0.5f32; D]; 5];
+    let id = Isometry3::identity();
+    assert_eq!(map.integrate(&id, &pts, &feats[..3], &mut sink), 3);
+    assert_eq!(map.integrate(&id, &pts[..1], &feats, &mut sink), 1);
+    assert_eq!(map.rejections().unpaired, 2 + 4);
+    assert_eq!(map.rejections().total(), 6);
+    assert_eq!(map.get(VoxelKey::new(0, 0, 0)).unwrap().lambda, 4.0);
+
+    // A map never configured has no kernel: it refuses (and counts) rather than swallowing points.
+    let mut blank = Box::new(LocalMap::<D, 256, P>::EMPTY);
+    assert_eq!(blank.integrate(&id, &pts, &feats, &mut sink), 0);
+    assert_eq!(blank.rejections().no_room, 5);
+    assert!(blank.is_empty());
+}
+
+#[test]
 fn a_refusing_sink_loses_nothing() {
     let mut map = boxed::<64>(3.0);
     let mut sink = Collect::default();
@@ -253,4 +274,38 @@ fn every_point_is_integrated_or_counted_once() {
         map.rejections().no_room > 0,
         "the test must exercise refused groups"
     );
+}
+
+#[test]
+fn residency_numbers_never_repeat_past_16_bits() {
+    // A small pool swept along a 400 m line and back: every allocation evicts a voxel, well over 2¹⁶ of
+    // them. Each eviction closes one residency; the base station tells a voxel's contributions apart by
+    // (key, residency), so no residency may be handed out twice — least of all to a revisited voxel.
+    let mut map = boxed::<64>(1_500.0);
+    let mut sink = Collect::default();
+    let y = [1.0f32; D];
+    let xs = (0..4_000).chain((0..4_000).rev());
+    for (i, x) in xs.enumerate() {
+        map.add_point([x as f32 * 0.1 + 0.05, 0.05, 0.05], &y, &mut sink)
+            .unwrap();
+        if i % 8 == 7 {
+            map.end_batch(&mut sink);
+        }
+    }
+    map.end_batch(&mut sink);
+    map.flush(&mut sink).unwrap();
+    let mut residencies: Vec<u32> = sink.voxels.iter().map(|v| v.1).collect();
+    let n = residencies.len();
+    assert!(n > 1 << 16, "only {n} evictions: the test must pass 2¹⁶");
+    residencies.sort_unstable();
+    residencies.dedup();
+    assert_eq!(residencies.len(), n, "a residency number was handed out twice");
+    let revisited = {
+        let mut keys: Vec<VoxelKey> = sink.voxels.iter().map(|v| v.0).collect();
+        keys.sort_unstable();
+        let all = keys.len();
+        keys.dedup();
+        all - keys.len()
+    };
+    assert!(revisited > 1_000, "the sweep back must re-allocate voxels");
 }
