@@ -910,7 +910,8 @@ mod tests {
         // λ = 0 (a slot holding only the prior) and NaN among good live voxels: a sent one would make the
         // base station refuse the whole frame, final summaries included.
         let mut enc = Enc::new(config(), EncoderSettings::new(1, 2)).unwrap();
-        enc.evict(live(VoxelKey::new(0, 0, 0), &voxel(1), 1)).unwrap();
+        enc.evict(live(VoxelKey::new(0, 0, 0), &voxel(1), 1))
+            .unwrap();
         let mut lives: [VoxelStats<8>; 6] = core::array::from_fn(|i| voxel(i as i32));
         lives[1].lambda = 0.0;
         lives[4].mean[2] = f32::NAN;

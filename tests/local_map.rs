@@ -299,7 +299,11 @@ fn residency_numbers_never_repeat_past_16_bits() {
     assert!(n > 1 << 16, "only {n} evictions: the test must pass 2¹⁶");
     residencies.sort_unstable();
     residencies.dedup();
-    assert_eq!(residencies.len(), n, "a residency number was handed out twice");
+    assert_eq!(
+        residencies.len(),
+        n,
+        "a residency number was handed out twice"
+    );
     let revisited = {
         let mut keys: Vec<VoxelKey> = sink.voxels.iter().map(|v| v.0).collect();
         keys.sort_unstable();
