@@ -442,7 +442,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                     if count == u16::MAX {
                         break;
                     }
-                    if !sendable(&v.stats) {
+                    if !sendable(v.stats) {
                         live.next();
                         from_live += 1;
                         continue;

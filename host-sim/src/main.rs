@@ -52,22 +52,22 @@ struct EmbedVocabArgs {
 #[derive(Args, Debug, Clone)]
 struct MapArgs {
     /// Voxel edge length in metres.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
     voxel_size: f32,
     /// Kernel length ℓ in metres.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     kernel_length: f32,
     /// Filter size f (odd, 1..=7): a point updates f³ voxels.
     #[arg(long, default_value_t = 3)]
     filter_size: u8,
     /// Prior confidence λ₀.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     prior_lambda: f32,
     /// Prior mean μ₀ (every dimension).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     prior_mean: f32,
     /// Prior scatter Ψ₀ (every dimension).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     prior_psi: f32,
     /// Sub-voxel kernel: cells per axis for the point's position inside its voxel (0 = voxel-offset kernel).
     #[arg(long, default_value_t = 0)]
@@ -148,16 +148,26 @@ fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Fra
         map.integrate(&poses[i], &f.positions, &features);
     }
     let r = map.rejections();
+    let reasons = format!(
+        "non-finite position {}, non-finite feature {}, out of range {}",
+        r.non_finite_position, r.non_finite_feature, r.key_out_of_range
+    );
+    if map.points() == 0 {
+        // An empty map is never what was meant: say why instead of writing one.
+        bail!(
+            "no point was integrated: {} rejected ({reasons}) in {} frames; nothing written to {}",
+            r.total(),
+            args.frames.len(),
+            args.out.display()
+        );
+    }
     write_map_npz(&args.out, &map.sorted())?;
     println!(
-        "integrated {} points from {} frames into {} voxels (D = {D}); rejected {} (non-finite position {}, non-finite feature {}, out of range {})",
+        "integrated {} points from {} frames into {} voxels (D = {D}); rejected {} ({reasons})",
         map.points(),
         args.frames.len(),
         map.len(),
         r.total(),
-        r.non_finite_position,
-        r.non_finite_feature,
-        r.key_out_of_range
     );
     println!("wrote {}", args.out.display());
     Ok(())

@@ -18,12 +18,14 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
     /// The file could not be opened, read or written.
-    #[error("{path}: {source}")]
+    // The OS error is part of the message and deliberately not chained as a `source` as well: anyhow
+    // would print it twice.
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The underlying error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The file is not the array we expect.
     #[error("{path}: {problem}; expected a 2-D float32 .npy array of shape (N, 3+D) with D >= 1 (xyz, then the feature)")]
@@ -56,9 +58,9 @@ pub enum IoError {
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> IoError + '_ {
-    move |source| IoError::Io {
+    move |error| IoError::Io {
         path: path.to_owned(),
-        source,
+        error,
     }
 }
 
@@ -189,6 +191,15 @@ impl NpyHeader {
                 n * 4
             ));
         }
+        if body.len() > n * 4 {
+            return Err(format!(
+                "{} bytes of trailing data: {} bytes for shape {:?}, expected {}",
+                body.len() - n * 4,
+                body.len(),
+                self.shape,
+                n * 4
+            ));
+        }
         Ok(body[..n * 4]
             .chunks_exact(4)
             .map(|c| {
@@ -224,7 +235,14 @@ pub fn parse_npy(bytes: &[u8]) -> Result<(NpyHeader, &[u8]), String> {
         .get(start..start.saturating_add(len))
         .ok_or("truncated header")?;
     let text = std::str::from_utf8(text).map_err(|_| "header is not text")?;
-    let header = parse_header(text).map_err(|e| format!("header `{}`: {e}", text.trim_end()))?;
+    let header = parse_header(text).map_err(|e| {
+        // Quote the header, but not a hostile 60 kB of it.
+        let text = text.trim_end();
+        match text.char_indices().nth(120) {
+            Some((cut, _)) => format!("header `{}…` ({} bytes): {e}", &text[..cut], text.len()),
+            None => format!("header `{text}`: {e}"),
+        }
+    })?;
     Ok((header, &bytes[start + len..]))
 }
 
@@ -239,9 +257,15 @@ enum Lit<'a> {
     None,
 }
 
+/// How deeply a header's literals may nest (numpy's headers nest 3 deep at most, for structured dtypes):
+/// the parser recurses, and a hostile header of 60,000 `[` would overflow the stack.
+const MAX_NESTING: usize = 16;
+
 struct LitParser<'a> {
     s: &'a str,
     i: usize,
+    /// Open brackets around the current position.
+    depth: usize,
 }
 
 impl<'a> LitParser<'a> {
@@ -287,6 +311,18 @@ impl<'a> LitParser<'a> {
         let Some(c) = rest.chars().next() else {
             return Err("unexpected end".into());
         };
+        if matches!(c, '(' | '[' | '{') {
+            if self.depth >= MAX_NESTING {
+                return Err(format!(
+                    "nested deeper than {MAX_NESTING} levels at byte {}",
+                    self.i
+                ));
+            }
+            self.depth += 1;
+            let v = self.nested(c);
+            self.depth -= 1;
+            return v;
+        }
         match c {
             '\'' | '"' => {
                 let end = rest[1..]
@@ -294,21 +330,6 @@ impl<'a> LitParser<'a> {
                     .ok_or_else(|| format!("unterminated string at byte {}", self.i))?;
                 self.i += end + 2;
                 Ok(Lit::Str(&rest[1..=end]))
-            }
-            '(' | '[' => {
-                self.i += 1;
-                let close = if c == '(' { ')' } else { ']' };
-                Ok(Lit::Seq(self.items(close, Self::value)?))
-            }
-            '{' => {
-                self.i += 1;
-                Ok(Lit::Dict(self.items('}', |p| {
-                    let k = p.value()?;
-                    if !p.eat(':') {
-                        return Err(format!("expected `:` at byte {}", p.i));
-                    }
-                    Ok((k, p.value()?))
-                })?))
             }
             _ => {
                 let len = rest
@@ -331,10 +352,30 @@ impl<'a> LitParser<'a> {
             }
         }
     }
+
+    /// A tuple, list or dict opening with `open` (at the current position).
+    fn nested(&mut self, open: char) -> Result<Lit<'a>, String> {
+        self.i += 1;
+        match open {
+            '{' => Ok(Lit::Dict(self.items('}', |p| {
+                let k = p.value()?;
+                if !p.eat(':') {
+                    return Err(format!("expected `:` at byte {}", p.i));
+                }
+                Ok((k, p.value()?))
+            })?)),
+            '(' => Ok(Lit::Seq(self.items(')', Self::value)?)),
+            _ => Ok(Lit::Seq(self.items(']', Self::value)?)),
+        }
+    }
 }
 
 fn parse_header(text: &str) -> Result<NpyHeader, String> {
-    let mut p = LitParser { s: text, i: 0 };
+    let mut p = LitParser {
+        s: text,
+        i: 0,
+        depth: 0,
+    };
     let Lit::Dict(entries) = p.value()? else {
         return Err("not a dict".into());
     };
@@ -415,12 +456,14 @@ pub fn read_poses(path: &Path) -> Result<Vec<Isometry3<f32>>, IoError> {
         };
         let v: Vec<f32> = line
             .split_whitespace()
-            .map(|t| {
-                t.parse::<f32>()
-                    .map_err(|_| bad(format!("`{t}` is not a number")))
+            .map(|t| match t.parse::<f32>() {
+                Ok(x) if x.is_finite() => Ok(x),
+                // NaN, inf, and numbers beyond f32 (1e39 parses as inf).
+                Ok(_) => Err(bad(format!("`{t}` is not a finite number"))),
+                Err(_) => Err(bad(format!("`{t}` is not a number"))),
             })
             .collect::<Result<_, _>>()?;
-        if v.len() != 7 || v.iter().any(|x| !x.is_finite()) {
+        if v.len() != 7 {
             return Err(bad(format!("found {} values", v.len())));
         }
         let q = Quaternion::new(v[6], v[3], v[4], v[5]);
@@ -651,6 +694,73 @@ mod tests {
         ] {
             assert!(parse_npy(bytes).is_err(), "{bytes:?}");
         }
+    }
+
+    #[test]
+    fn refuses_deep_nesting_instead_of_overflowing_the_stack() {
+        // 60,000 `[` recursed once per bracket and aborted the process on a stack overflow.
+        for open in ["[", "(", "{'a': "] {
+            // (A version 1 header holds at most 65,535 bytes.)
+            let text = format!("{{'descr': {}", open.repeat(60_000 / open.len()));
+            let err = header(&text).unwrap_err();
+            assert!(
+                err.contains("nested deeper than 16 levels"),
+                "{}",
+                &err[..80]
+            );
+        }
+        // 16 levels are fine (numpy's structured dtypes nest 3 deep).
+        let deep = format!(
+            "{{'descr': {}'<f4'{}, 'fortran_order': False, 'shape': (1,), }}",
+            "[".repeat(15),
+            "]".repeat(15)
+        );
+        assert!(header(&deep).is_ok());
+        let too_deep = deep
+            .replace("'descr': ", "'descr': [")
+            .replace("'<f4'", "'<f4']");
+        assert!(header(&too_deep).unwrap_err().contains("nested deeper"));
+    }
+
+    #[test]
+    fn refuses_trailing_data() {
+        let mut bytes = numpy_arange();
+        bytes.extend(7.0f32.to_le_bytes());
+        let (h, body) = parse_npy(&bytes).unwrap();
+        let err = h.decode::<f32>(body).unwrap_err();
+        assert!(
+            err.contains("4 bytes of trailing data") && err.contains("expected 24"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn pose_values_must_be_finite() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("poses.txt");
+        for bad in ["nan", "inf", "-inf", "1e39"] {
+            std::fs::write(&path, format!("0 0 0 0 0 0 1\n0 {bad} 0 0 0 0 1\n")).unwrap();
+            let err = read_poses(&path).unwrap_err().to_string();
+            assert!(
+                err.contains("poses.txt:2")
+                    && err.contains(&format!("`{bad}` is not a finite number")),
+                "{err}"
+            );
+        }
+        std::fs::write(&path, "0 0 0 0 0 1\n").unwrap();
+        let err = read_poses(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("poses.txt:1") && err.contains("found 6 values"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn os_errors_are_in_the_message_not_chained_again() {
+        let err = read_frame(Path::new("/nonexistent/frame.npy")).unwrap_err();
+        let msg = err.to_string();
+        assert!(msg.starts_with("/nonexistent/frame.npy: "), "{msg}");
+        assert!(std::error::Error::source(&err).is_none());
     }
 
     /// `np.savez` (stored, zip64 entries) and `np.savez_compressed` (deflate) archives of

@@ -175,3 +175,156 @@ fn malformed_frames_give_clear_errors() {
     assert!(!ok && err.contains("poses.txt:2"), "{err}");
     assert!(!out.exists(), "no output is written on error");
 }
+
+/// A `.npy` file with this header text (version 1) and body.
+fn npy_with_header(text: &str, body: &[u8]) -> Vec<u8> {
+    let mut b = b"\x93NUMPY\x01\x00".to_vec();
+    b.extend((text.len() as u16).to_le_bytes());
+    b.extend(text.as_bytes());
+    b.extend(body);
+    b
+}
+
+#[test]
+fn deeply_nested_header_is_an_error_not_a_stack_overflow() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map.npz");
+    let p = dir.path().join("nested.npy");
+    std::fs::write(
+        &p,
+        npy_with_header(&format!("{{'descr': {}", "[".repeat(60_000)), &[]),
+    )
+    .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .arg("integrate")
+        .arg(&p)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    // Exit code 1 (an error), not a signal.
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("nested.npy") && err.contains("nested deeper than 16 levels"),
+        "{err}"
+    );
+    assert!(
+        err.len() < 2000,
+        "the 60 kB header is not quoted whole: {err}"
+    );
+}
+
+#[test]
+fn data_beyond_the_shape_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map.npz");
+    let p = dir.path().join("long.npy");
+    let (pos, feat) = frame(3, 10);
+    write_frame(&p, &pos, &feat, D).unwrap();
+    let mut bytes = std::fs::read(&p).unwrap();
+    bytes.extend([0u8; 8]);
+    std::fs::write(&p, bytes).unwrap();
+    let (ok, err) = run_integrate(&[p.as_os_str(), "--out".as_ref(), out.as_os_str()]);
+    assert!(
+        !ok && err.contains("long.npy") && err.contains("8 bytes of trailing data"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn nothing_integrated_is_an_error_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map.npz");
+    let p = dir.path().join("nan.npy");
+    let (mut pos, feat) = frame(4, 20);
+    pos.iter_mut().for_each(|q| q[0] = f32::NAN);
+    write_frame(&p, &pos, &feat, D).unwrap();
+    let (ok, err) = run_integrate(&[p.as_os_str(), "--out".as_ref(), out.as_os_str()]);
+    assert!(
+        !ok && err.contains("no point was integrated: 20 rejected (non-finite position 20"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no empty map is written");
+}
+
+#[test]
+fn negative_numbers_need_no_equals_sign() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map.npz");
+    let p = dir.path().join("f.npy");
+    let (pos, feat) = frame(5, 50);
+    write_frame(&p, &pos, &feat, D).unwrap();
+    let (ok, err) = run_integrate(&[
+        p.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--prior-mean".as_ref(),
+        "-5".as_ref(),
+        "--prior-lambda".as_ref(),
+        "1".as_ref(),
+    ]);
+    assert!(ok, "{err}");
+    // The same map as with `--prior-mean=-5` (which always worked), not the default prior's.
+    let mean = read_map_npz(&out).unwrap().mean;
+    let with_equals = dir.path().join("equals.npz");
+    let (ok, err) = run_integrate(&[
+        p.as_os_str(),
+        "--out".as_ref(),
+        with_equals.as_os_str(),
+        "--prior-mean=-5".as_ref(),
+        "--prior-lambda=1".as_ref(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(mean, read_map_npz(&with_equals).unwrap().mean);
+    let (ok, err) = run_integrate(&[p.as_os_str(), "--out".as_ref(), with_equals.as_os_str()]);
+    assert!(ok, "{err}");
+    assert_ne!(mean, read_map_npz(&with_equals).unwrap().mean);
+    // A negative value that makes no sense reaches the configuration check, not clap's parser.
+    let (ok, err) = run_integrate(&[
+        p.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--voxel-size".as_ref(),
+        "-0.1".as_ref(),
+    ]);
+    assert!(!ok && err.contains("voxel size"), "{err}");
+}
+
+#[test]
+fn non_finite_pose_values_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map.npz");
+    let good = dir.path().join("good.npy");
+    let (pos, feat) = frame(6, 20);
+    write_frame(&good, &pos, &feat, D).unwrap();
+    let poses = dir.path().join("poses.txt");
+    for bad in ["nan", "inf", "1e39"] {
+        std::fs::write(&poses, format!("0 0 0 0 0 0 1\n0 0 {bad} 0 0 0 1\n")).unwrap();
+        let (ok, err) = run_integrate(&[
+            good.as_os_str(),
+            good.as_os_str(),
+            "--poses".as_ref(),
+            poses.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
+        assert!(
+            !ok && err.contains("poses.txt:2")
+                && err.contains(&format!("`{bad}` is not a finite number")),
+            "{err}"
+        );
+        assert!(!err.contains("found 7 values"), "{err}");
+    }
+}
+
+#[test]
+fn os_errors_are_printed_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.npy");
+    let out = dir.path().join("map.npz");
+    let (ok, err) = run_integrate(&[missing.as_os_str(), "--out".as_ref(), out.as_os_str()]);
+    assert!(!ok && err.contains("missing.npy"), "{err}");
+    assert_eq!(err.matches("os error 2").count(), 1, "{err}");
+}

@@ -94,3 +94,231 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/pca.npz"));
 }
+
+/// The PCA of the recorded stream's robots as the `--pca` file (`mean` 384, `components` 64 × 384).
+fn write_pca(path: &std::path::Path, pca: &latentbki::Pca<D, F>) {
+    use host_sim::npy_io::write_npy;
+    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
+    let opts = zip::write::FileOptions::default();
+    zip.start_file("mean.npy", opts).unwrap();
+    write_npy(&mut zip, &[F as u64], pca.mean).unwrap();
+    zip.start_file("components.npy", opts).unwrap();
+    write_npy(
+        &mut zip,
+        &[D as u64, F as u64],
+        pca.components.iter().flatten().copied(),
+    )
+    .unwrap();
+    zip.finish().unwrap();
+}
+
+/// Run `base-station - <args>` with stdin open and silent: the command must fail on its options without
+/// waiting for the stream (a base station that read first would wait here forever). Returns stderr.
+fn refused_before_reading(args: &[&std::ffi::OsStr]) -> String {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(["base-station", "-"])
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdin = child.stdin.take();
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > std::time::Duration::from_secs(60) {
+            child.kill().unwrap();
+            panic!("{args:?}: the base station waited for the stream before checking its options");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    drop(stdin);
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "{args:?} accepted");
+    assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    stderr
+}
+
+#[test]
+fn bad_durations_and_scales_are_refused_up_front() {
+    for bad in ["-1", "NaN", "inf", "1e300", "soon"] {
+        // Both spellings: `--duration -1` used to be refused by clap as an unknown argument.
+        for args in [
+            vec!["--duration".to_string(), bad.to_string()],
+            vec![format!("--duration={bad}")],
+        ] {
+            let args: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_ref()).collect();
+            let err = refused_before_reading(&args);
+            assert!(
+                err.contains("--duration") && err.contains(bad) && err.contains("seconds"),
+                "{err}"
+            );
+        }
+    }
+    for bad in ["0", "100000", "2147483648"] {
+        let err = refused_before_reading(&["--scale".as_ref(), bad.as_ref()]);
+        assert!(
+            err.contains("--scale") && err.contains("1..=16384"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn options_are_checked_before_the_stream_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pca = d.join("pca.npz");
+    write_pca(&pca, &World::new(SummaryCodec::DEFAULT).pca);
+    let junk = d.join("junk.lbki");
+    std::fs::write(&junk, b"not a map").unwrap();
+    let missing = d.join("missing");
+    let p = |p: &std::path::Path| p.as_os_str().to_owned();
+    let cases: Vec<(Vec<std::ffi::OsString>, Vec<String>)> = vec![
+        (
+            vec!["--pca".into(), "/nonexistent/pca.npz".into()],
+            vec!["/nonexistent/pca.npz".into()],
+        ),
+        (
+            vec!["--classes".into(), "ground,road".into()],
+            vec!["--classes needs --pca".into()],
+        ),
+        (
+            vec!["--query".into(), "road".into()],
+            vec!["--query needs --pca".into()],
+        ),
+        (
+            vec![
+                "--pca".into(),
+                p(&pca),
+                "--classes".into(),
+                "ground,raod".into(),
+            ],
+            vec![
+                "--classes".into(),
+                "\"raod\" is not in the committed vocabulary".into(),
+            ],
+        ),
+        (
+            vec!["--pca".into(), p(&pca), "--query".into(), "raod".into()],
+            vec!["--query".into(), "\"raod\"".into()],
+        ),
+        (
+            vec!["--map".into(), p(&missing.join("g.lbki"))],
+            vec![
+                "--map".into(),
+                format!("{} does not exist", missing.display()),
+            ],
+        ),
+        (
+            vec!["--png".into(), p(&missing.join("g"))],
+            vec![
+                "--png".into(),
+                format!("{} does not exist", missing.display()),
+            ],
+        ),
+        (
+            vec!["--ply".into(), p(&missing.join("g.ply"))],
+            vec![
+                "--ply".into(),
+                format!("{} does not exist", missing.display()),
+            ],
+        ),
+        (
+            vec!["--ply".into(), p(d)],
+            vec!["--ply".into(), "is a folder".into()],
+        ),
+        (
+            vec!["--map".into(), p(&junk.join("g.lbki"))],
+            vec![format!("{} is not a folder", junk.display())],
+        ),
+        // A map file that is not one: the error names the file.
+        (
+            vec!["--map".into(), p(&junk)],
+            vec![
+                junk.display().to_string(),
+                "not a latentbki global map".into(),
+            ],
+        ),
+    ];
+    for (args, wanted) in cases {
+        let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+        let err = refused_before_reading(&refs);
+        for w in wanted {
+            assert!(err.contains(&w), "{args:?}: wanted `{w}` in {err}");
+        }
+    }
+    assert!(!missing.exists());
+}
+
+#[test]
+fn vocabulary_query_and_image_size_after_the_stream() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("robot.bin");
+    std::fs::write(&input, recorded_stream()).unwrap();
+    let world = World::new(SummaryCodec::DEFAULT);
+    let pca = dir.path().join("pca.npz");
+    write_pca(&pca, &world.pca);
+    let bin = env!("CARGO_BIN_EXE_host-sim");
+    // Loaded up front, used at the end.
+    let out = Command::new(bin)
+        .arg("base-station")
+        .arg(&input)
+        .arg("--pca")
+        .arg(&pca)
+        .args(["--classes", "ground, road ,building", "--query", "road"])
+        .arg("--png")
+        .arg(dir.path().join("g"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("  road: "), "{stdout}");
+    assert!(dir.path().join("g-heat.png").exists());
+    // Another PCA: refused once the robots' feature space is known.
+    let mut other = world.pca.clone();
+    other.mean[0] += 0.5;
+    write_pca(&pca, &other);
+    let out = Command::new(bin)
+        .arg("base-station")
+        .arg(&input)
+        .arg("--pca")
+        .arg(&pca)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("feature-space id"),
+        "{stderr}"
+    );
+    // A scale the clap range allows, but too large for this map's width: a clear error, no abort.
+    let out = Command::new(bin)
+        .arg("base-station")
+        .arg(&input)
+        .arg("--png")
+        .arg(dir.path().join("big"))
+        .args(["--scale", "16384"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.code() == Some(1) && stderr.contains("too large an image"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("big-labels.png").exists());
+}
+
+#[test]
+fn map_file_os_errors_are_printed_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = GlobalMap::<D>::load(&dir.path().join("nope.lbki")).unwrap_err();
+    // As main prints it: the message and its chain of causes.
+    let shown = format!("{:?}", anyhow::Error::new(err));
+    assert!(shown.contains("nope.lbki"), "{shown}");
+    assert_eq!(shown.matches("os error 2").count(), 1, "{shown}");
+}

@@ -1,7 +1,8 @@
 //! `host-sim base-station`: receive robots' streams from a serial port, a file, a pty or stdin; keep, save
 //! and export the global map.
 
-use super::export::{write_ply, write_pngs};
+use super::export::{write_ply, write_pngs, MAX_SIDE};
+use super::file::LoadError;
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 use crate::npy_io::NpzReader;
 use anyhow::{bail, Context, Result};
@@ -29,8 +30,8 @@ pub struct BaseStationArgs {
     #[arg(long, default_value_t = 115_200)]
     baud: u32,
     /// Stop after this many seconds (serial ports and ptys never end by themselves).
-    #[arg(long)]
-    duration: Option<f64>,
+    #[arg(long, value_parser = parse_duration, allow_negative_numbers = true)]
+    duration: Option<Duration>,
     /// Continue this saved map (if the file exists) and save back to it at the end.
     #[arg(long)]
     map: Option<PathBuf>,
@@ -47,12 +48,103 @@ pub struct BaseStationArgs {
     /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`.
     #[arg(long)]
     png: Option<PathBuf>,
-    /// Pixels per voxel in the PNGs.
-    #[arg(long, default_value_t = 4)]
+    /// Pixels per voxel in the PNGs (1..=16384; the image is at most 16384 pixels per side).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_SIDE)))]
     scale: u32,
     /// Write the map as an ASCII PLY point cloud.
     #[arg(long)]
     ply: Option<PathBuf>,
+}
+
+/// `--duration`: seconds, finite, >= 0 and representable as a [`Duration`].
+fn parse_duration(s: &str) -> Result<Duration, String> {
+    let secs: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if !secs.is_finite() || secs < 0.0 {
+        return Err(format!("{s} seconds: give a finite number of seconds >= 0"));
+    }
+    Duration::try_from_secs_f64(secs).map_err(|_| format!("{s} seconds is too long a duration"))
+}
+
+/// Check that `path` (given with `flag`) can be written: its folder exists and it is not a folder itself.
+fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
+    let folder = match path.parent() {
+        Some(f) if !f.as_os_str().is_empty() => f,
+        _ => Path::new("."),
+    };
+    if !folder.is_dir() {
+        let (f, p) = (folder.display(), path.display());
+        if folder.exists() {
+            bail!("{flag} {p}: {f} is not a folder");
+        }
+        bail!("{flag} {p}: the folder {f} does not exist");
+    }
+    if !is_prefix && path.is_dir() {
+        bail!("{flag} {}: is a folder, not a file", path.display());
+    }
+    Ok(())
+}
+
+/// The vocabulary (`--pca`, `--classes`) and the query (`--query`) codebooks.
+type Vocab = (Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>);
+
+fn read_vocabulary(
+    args: &BaseStationArgs,
+) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
+    let Some(p) = &args.pca else {
+        if args.classes.is_some() {
+            bail!("--classes needs --pca (the PCA the robots used)");
+        }
+        if args.query.is_some() {
+            bail!("--query needs --pca (the PCA the robots used)");
+        }
+        return Ok((None, None));
+    };
+    let pca = read_pca(p)?;
+    let table = crate::sim::vocab::Vocabulary::builtin();
+    let names: Vec<String> = match &args.classes {
+        Some(c) => c.split(',').map(|s| s.trim().to_string()).collect(),
+        None => table.phrases().into_iter().take(12).collect(),
+    };
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let emb = table
+        .embeddings(&refs)
+        .map_err(|e| anyhow::anyhow!("--classes: {e}"))?;
+    let cb = Codebook::from_pca(&pca, &emb).map_err(|e| anyhow::anyhow!("vocabulary: {e}"))?;
+    let query = match &args.query {
+        Some(q) => {
+            let e = table
+                .embeddings(&[q.as_str()])
+                .map_err(|e| anyhow::anyhow!("--query: {e}"))?;
+            Some(
+                Codebook::<DIM, VOCAB_CAP>::from_pca(&pca, &e)
+                    .map_err(|e| anyhow::anyhow!("query: {e}"))?,
+            )
+        }
+        None => None,
+    };
+    Ok((Some((names, cb, pca)), query))
+}
+
+/// The PCA must be the robots' (the map's feature-space id) or the labels would be meaningless.
+fn check_feature_space(
+    args: &BaseStationArgs,
+    vocab: Option<&Vocab>,
+    map: &GlobalMap<DIM>,
+) -> Result<()> {
+    if let (Some(p), Some((_, _, pca))) = (&args.pca, vocab) {
+        let id = feature_space_id(pca);
+        if id != map.config().feature_space {
+            bail!(
+                "{}: feature-space id {id:#010x} is not the robots' ({:#010x}): labels would be meaningless",
+                p.display(),
+                map.config().feature_space
+            );
+        }
+    }
+    Ok(())
 }
 
 fn read_pca(path: &Path) -> Result<Box<Pca<DIM, FULL>>> {
@@ -83,9 +175,26 @@ fn read_pca(path: &Path) -> Result<Box<Pca<DIM, FULL>>> {
 
 /// Run the command.
 pub fn run(args: &BaseStationArgs) -> Result<()> {
+    // Every option is checked before the first byte is read: a typo found at the end would lose a whole
+    // serial session.
+    if let Some(p) = &args.map {
+        check_output("--map", p, false)?;
+    }
+    if let Some(p) = &args.png {
+        check_output("--png", p, true)?;
+    }
+    if let Some(p) = &args.ply {
+        check_output("--ply", p, false)?;
+    }
+    let (vocab, query) = read_vocabulary(args)?;
     let mut base = match &args.map {
         Some(p) if p.exists() => {
-            let map = GlobalMap::<DIM>::load(p)?;
+            let map = GlobalMap::<DIM>::load(p).map_err(|e| match e {
+                LoadError::Io { .. } => anyhow::Error::new(e), // names the file already
+                e => anyhow::anyhow!("{}: {e}", p.display()),
+            })?;
+            // A continued map knows the robots' feature space already: check the PCA now.
+            check_feature_space(args, vocab.as_ref(), &map)?;
             println!("continuing {} ({} voxels)", p.display(), map.len());
             BaseStation::from_map(map)
         }
@@ -105,7 +214,7 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         (None, None) => bail!("give an input file, `-` for stdin, or --serial PORT"),
     };
     let start = Instant::now();
-    let deadline = args.duration.map(Duration::from_secs_f64);
+    let deadline = args.duration;
     let mut buf = [0u8; 4096];
     loop {
         if deadline.is_some_and(|d| start.elapsed() >= d) {
@@ -149,49 +258,7 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
             .with_context(|| format!("saving {}", p.display()))?;
         println!("saved {}", p.display());
     }
-    // Vocabulary (needs the PCA the robots used).
-    let vocab: Option<(Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>)> = match &args
-        .pca
-    {
-        None => None,
-        Some(p) => {
-            let pca = read_pca(p)?;
-            let id = feature_space_id(&pca);
-            if id != map.config().feature_space {
-                bail!(
-                    "{}: feature-space id {id:#010x} is not the robots' ({:#010x}): labels would be meaningless",
-                    p.display(),
-                    map.config().feature_space
-                );
-            }
-            let table = crate::sim::vocab::Vocabulary::builtin();
-            let names: Vec<String> = match &args.classes {
-                Some(c) => c.split(',').map(|s| s.trim().to_string()).collect(),
-                None => table.phrases().into_iter().take(12).collect(),
-            };
-            let refs: Vec<&str> = names.iter().map(String::as_str).collect();
-            let emb = table
-                .embeddings(&refs)
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            let cb =
-                Codebook::from_pca(&pca, &emb).map_err(|e| anyhow::anyhow!("vocabulary: {e}"))?;
-            Some((names, cb, pca))
-        }
-    };
-    let query = match (&args.query, &vocab) {
-        (Some(q), Some((_, _, pca))) => {
-            let table = crate::sim::vocab::Vocabulary::builtin();
-            let e = table
-                .embeddings(&[q.as_str()])
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            Some(
-                Codebook::<DIM, VOCAB_CAP>::from_pca(pca, &e)
-                    .map_err(|e| anyhow::anyhow!("query: {e}"))?,
-            )
-        }
-        (Some(_), None) => bail!("--query needs --pca"),
-        _ => None,
-    };
+    check_feature_space(args, vocab.as_ref(), map)?;
     let empty =
         Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
     let cb = vocab.as_ref().map_or(&empty, |v| &v.1);

@@ -20,17 +20,36 @@ pub enum ExportError {
     #[error("the map is empty: nothing to export")]
     Empty,
     /// The map is too wide for an image.
-    #[error("the map spans {0} × {1} voxel columns: too large for an image (max 16384 per side)")]
+    #[error(
+        "the map spans {0} × {1} voxel columns: too large for an image (max {MAX_SIDE} per side)"
+    )]
     TooLarge(i64, i64),
+    /// The image at this scale would be too large.
+    #[error("a map of {w} × {h} voxel columns at {scale} pixels per voxel is too large an image (max {MAX_SIDE} pixels per side): lower the scale")]
+    ImageTooLarge {
+        /// Columns across.
+        w: u32,
+        /// Columns down.
+        h: u32,
+        /// Pixels per voxel.
+        scale: u32,
+    },
+    /// A scale of 0 pixels per voxel.
+    #[error("the scale must be at least 1 pixel per voxel")]
+    ZeroScale,
     /// Writing failed.
-    #[error("cannot write {path}: {source}")]
+    // The OS error is in the message, so it is not chained as a `source` too (anyhow would print it twice).
+    #[error("cannot write {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// The cause.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
+
+/// Largest image side in pixels (a 16384 × 16384 RGB image is 768 MiB).
+pub const MAX_SIDE: u32 = 16384;
 
 /// Distinct colours for up to 20 labels (then repeating): Tableau 20.
 pub const PALETTE: [[u8; 3]; 20] = [
@@ -108,7 +127,7 @@ fn grid(cols: &HashMap<(i32, i32), Vec<VoxelKey>>) -> Result<Grid, ExportError> 
         i64::from(x1) - i64::from(x0) + 1,
         i64::from(y1) - i64::from(y0) + 1,
     );
-    if w > 16384 || h > 16384 {
+    if w > i64::from(MAX_SIDE) || h > i64::from(MAX_SIDE) {
         return Err(ExportError::TooLarge(w, h));
     }
     Ok(Grid {
@@ -119,6 +138,18 @@ fn grid(cols: &HashMap<(i32, i32), Vec<VoxelKey>>) -> Result<Grid, ExportError> 
     })
 }
 
+/// The pixel size of a `w` × `h` column image at `scale` pixels per voxel, if it is a sane image.
+fn image_size(w: u32, h: u32, scale: u32) -> Result<(u32, u32), ExportError> {
+    if scale == 0 {
+        return Err(ExportError::ZeroScale);
+    }
+    let side = |n: u32| n.checked_mul(scale).filter(|&p| p <= MAX_SIDE);
+    match (side(w), side(h)) {
+        (Some(pw), Some(ph)) => Ok((pw, ph)),
+        _ => Err(ExportError::ImageTooLarge { w, h, scale }),
+    }
+}
+
 /// Paint one value per column (None = background), north up, `scale` pixels per voxel.
 fn paint(
     cols: &HashMap<(i32, i32), Vec<VoxelKey>>,
@@ -126,8 +157,8 @@ fn paint(
     mut colour: impl FnMut(&[VoxelKey]) -> Option<[u8; 3]>,
 ) -> Result<RgbImage, ExportError> {
     let g = grid(cols)?;
-    let scale = scale.max(1);
-    let mut img = RgbImage::from_pixel(g.w * scale, g.h * scale, [255, 255, 255]);
+    let (w, h) = image_size(g.w, g.h, scale)?;
+    let mut img = RgbImage::from_pixel(w, h, [255, 255, 255]);
     for (&(x, y), keys) in cols {
         if let Some(c) = colour(keys) {
             let (px, py) = ((x - g.x0) as u32 * scale, (g.y1 - y) as u32 * scale);
@@ -142,9 +173,9 @@ fn paint(
 }
 
 fn save_png(img: &RgbImage, path: &Path) -> Result<(), ExportError> {
-    img.save_png(path).map_err(|source| ExportError::Io {
+    img.save_png(path).map_err(|error| ExportError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     })
 }
 
@@ -254,9 +285,9 @@ pub fn write_ply<const D: usize, const K: usize>(
     vocab: &Codebook<D, K>,
     path: &Path,
 ) -> Result<(), ExportError> {
-    let io = |source| ExportError::Io {
+    let io = |error| ExportError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     };
     let f = std::fs::File::create(path).map_err(io)?;
     let mut w = std::io::BufWriter::new(f);
@@ -289,4 +320,42 @@ pub fn write_ply<const D: usize, const K: usize>(
         .map_err(io)?;
     }
     w.flush().map_err(io)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cols(keys: &[(i32, i32)]) -> HashMap<(i32, i32), Vec<VoxelKey>> {
+        keys.iter()
+            .map(|&(x, y)| ((x, y), vec![VoxelKey::new(x, y, 0)]))
+            .collect()
+    }
+
+    #[test]
+    fn refuses_zero_and_oversized_scales() {
+        let two_by_one = cols(&[(0, 0), (1, 0)]);
+        let red = |_: &[VoxelKey]| Some([255, 0, 0]);
+        let img = paint(&two_by_one, 3, red).unwrap();
+        assert_eq!((img.width(), img.height()), (6, 3));
+        assert!(matches!(
+            paint(&two_by_one, 0, red),
+            Err(ExportError::ZeroScale)
+        ));
+        // 2 × 8192 = 16384 pixels is the largest side; one more pixel per voxel is refused.
+        assert_eq!(
+            image_size(2, 1, MAX_SIDE / 2).unwrap(),
+            (MAX_SIDE, MAX_SIDE / 2)
+        );
+        assert_eq!(image_size(1, 1, MAX_SIDE).unwrap(), (MAX_SIDE, MAX_SIDE));
+        // 100000 asked for 120 GB; 2147483648 × 2 wrapped to a zero width.
+        for scale in [MAX_SIDE / 2 + 1, 100_000, 2_147_483_648, u32::MAX] {
+            let err = paint(&two_by_one, scale, red).unwrap_err();
+            assert!(
+                matches!(err, ExportError::ImageTooLarge { w: 2, h: 1, .. }),
+                "{scale}: {err}"
+            );
+            assert!(err.to_string().contains("too large an image"), "{err}");
+        }
+    }
 }

@@ -34,12 +34,13 @@ pub const FILE_VERSION: u32 = 1;
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
     /// Reading failed.
-    #[error("cannot read {path}: {source}")]
+    // The OS error is in the message, so it is not chained as a `source` too (anyhow would print it twice).
+    #[error("cannot read {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// The cause.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The file does not start with the map magic.
     #[error("not a latentbki global map file (expected magic \"LBKIGMAP\")")]
@@ -309,9 +310,9 @@ impl<const D: usize> GlobalMap<D> {
 
     /// Read a map file.
     pub fn load(path: &Path) -> Result<Self, LoadError> {
-        let bytes = std::fs::read(path).map_err(|source| LoadError::Io {
+        let bytes = std::fs::read(path).map_err(|error| LoadError::Io {
             path: path.display().to_string(),
-            source,
+            error,
         })?;
         Self::from_bytes(&bytes)
     }

@@ -3,10 +3,10 @@
 
 use super::experiment::{self, Method, Setup};
 use super::figures::{self, TopDown};
-use super::methods::{Decoder, VoxelSink};
+use super::methods::{Decoder, VoxelSink, D};
 use super::scenes::{self, Report, Scene, SceneOptions, SceneSource};
 use crate::sim::vocab::Vocabulary;
-use anyhow::{Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -67,10 +67,10 @@ pub struct EvalArgs {
     #[arg(long = "query")]
     pub queries: Vec<String>,
     /// Probability that a segment is mislabelled in a block of frames (the simulated network's error model).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub confusion_probability: Option<f32>,
     /// Expected norm of per-point feature noise relative to the unit text embedding.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub feature_noise: Option<f32>,
 }
 
@@ -79,7 +79,7 @@ pub struct EvalArgs {
 pub struct QueryArgs {
     /// Text to look for (a phrase of the committed vocabulary).
     pub text: String,
-    /// Scene to map and query.
+    /// Scene to map and query (`tile` or `indoor`; one scene at a time).
     #[arg(long, value_enum, default_value = "tile")]
     pub scene: SceneArg,
     /// Output directory for the heat map.
@@ -138,6 +138,19 @@ pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
 /// `eval`: both scenes (or one), every method, the sweep, the curves and the pictures.
 pub fn eval(args: &EvalArgs) -> Result<()> {
     let start = Instant::now();
+    // The PCA fits D components on the training sequence's features: it needs more than D of them.
+    let pca_min = D + 1;
+    ensure!(args.frames >= 1, "--frames must be at least 1");
+    ensure!(args.points >= 1, "--points must be at least 1");
+    ensure!(args.pixels >= 1, "--pixels must be at least 1");
+    if args.scene != SceneArg::Indoor {
+        ensure!(
+            args.frames.saturating_mul(args.points) >= pca_min,
+            "--frames × --points is {} × {}: the tile needs at least {pca_min} points in all to fit the {D}-component PCA",
+            args.frames,
+            args.points
+        );
+    }
     let vocab = Vocabulary::builtin();
     for q in &args.queries {
         vocab.get(q)?;
@@ -157,6 +170,9 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         anyhow::ensure!(n >= 0.0 && n.is_finite(), "--feature-noise must be >= 0");
         setup.noise.feature_noise = n;
     }
+    // The output folder first: finding it unusable after the runs would waste them.
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("--out: cannot create the folder {}", args.out.display()))?;
     let options = SceneOptions {
         tile_frames: args.frames,
         tile_points: args.points,
@@ -185,6 +201,15 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
 
 /// `query`: map a scene with the device map and show where the text matches.
 pub fn query(args: &QueryArgs) -> Result<()> {
+    let scene = match args.scene {
+        SceneArg::Tile => Scene::Tile,
+        SceneArg::Indoor => Scene::Indoor,
+        SceneArg::Both => bail!("query maps one scene: give --scene tile or --scene indoor"),
+    };
+    // The output folder first: finding it unusable after the mapping would waste the run.
+    let dir = args.out.join(scene.name());
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("--out: cannot create the folder {}", dir.display()))?;
     let vocab = Vocabulary::builtin();
     let embedding = match vocab.get(&args.text) {
         Ok(e) => *e,
@@ -197,10 +222,6 @@ pub fn query(args: &QueryArgs) -> Result<()> {
                 "{e}\n(build with `--features encoder` to query any text)"
             ))
         }
-    };
-    let scene = match args.scene {
-        SceneArg::Indoor => Scene::Indoor,
-        _ => Scene::Tile,
     };
     let setup = Setup {
         seed: args.seed,
@@ -281,11 +302,97 @@ pub fn query(args: &QueryArgs) -> Result<()> {
             p[0], p[1], p[2]
         );
     }
-    let dir = args.out.join(scene.name());
-    std::fs::create_dir_all(&dir)?;
     let path = dir.join(format!("query_{}.png", args.text.trim().replace(' ', "_")));
     figures::query_heatmap(&path, &args.text, &top, &test.config, &cb)
         .map_err(|e| anyhow::anyhow!("drawing: {e}"))?;
     println!("wrote {}", path.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn eval_args(out: &Path) -> EvalArgs {
+        EvalArgs {
+            scene: SceneArg::Tile,
+            out: out.to_owned(),
+            seed: 7,
+            frames: 2,
+            points: 100,
+            pixels: 100,
+            layout_seed: 1,
+            tof: false,
+            no_sweep: true,
+            queries: Vec::new(),
+            confusion_probability: None,
+            feature_noise: None,
+        }
+    }
+
+    #[test]
+    fn eval_refuses_empty_budgets() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let err = |change: fn(&mut EvalArgs)| {
+            let mut args = eval_args(&out);
+            change(&mut args);
+            eval(&args).unwrap_err().to_string()
+        };
+        // `--frames 0` ran one frame; `--points 0|1`, `--pixels 0` failed deep inside the PCA.
+        assert_eq!(err(|a| a.frames = 0), "--frames must be at least 1");
+        assert_eq!(err(|a| a.points = 0), "--points must be at least 1");
+        assert_eq!(err(|a| a.pixels = 0), "--pixels must be at least 1");
+        let e = err(|a| {
+            a.points = 1;
+            a.frames = 60;
+        });
+        assert!(
+            e.contains("60 × 1") && e.contains("at least 65 points"),
+            "{e}"
+        );
+        // Indoors the tile's budget does not matter.
+        let e = err(|a| {
+            a.scene = SceneArg::Indoor;
+            a.points = 1;
+            a.pixels = 0;
+        });
+        assert_eq!(e, "--pixels must be at least 1");
+        assert!(!out.exists(), "nothing is written");
+    }
+
+    fn query_args(out: &Path, scene: SceneArg) -> QueryArgs {
+        QueryArgs {
+            text: "road".into(),
+            scene,
+            out: out.to_owned(),
+            seed: 7,
+        }
+    }
+
+    #[test]
+    fn query_refuses_both_scenes() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = query(&query_args(dir.path(), SceneArg::Both)).unwrap_err();
+        assert!(
+            err.to_string().contains("--scene tile or --scene indoor"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn query_checks_its_output_folder_before_mapping() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("a-file");
+        std::fs::write(&file, b"").unwrap();
+        let start = Instant::now();
+        let err = query(&query_args(&file, SceneArg::Tile)).unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(
+            msg.contains("--out") && msg.contains(&file.join("tile").display().to_string()),
+            "{msg}"
+        );
+        // Refused before the mapping (seconds), not after it.
+        assert!(start.elapsed().as_secs_f64() < 1.0);
+    }
 }

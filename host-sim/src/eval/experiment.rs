@@ -99,7 +99,9 @@ pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::
             .collect();
         samples.extend(train_encoder.encode_full(&chosen, t as u32, &mut rng));
     }
-    let pca = pca::fit::<D>(&samples)?;
+    let pca = pca::fit::<D>(&samples).map_err(|e| {
+        anyhow::anyhow!("fitting the feature PCA on the training sequence: {e} (more points per frame, or more frames, are needed)")
+    })?;
     let explained_variance = pca::explained_variance(&pca, &samples);
     let decoder = Decoder::from_pca(&pca, &embeddings)
         .map_err(|e| anyhow::anyhow!("building the codebook: {e}"))?;
