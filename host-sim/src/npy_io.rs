@@ -505,6 +505,29 @@ pub fn write_map_npz<const D: usize>(
     write().map_err(io_err(path))
 }
 
+/// Write a PCA as `.npz`: `mean` (F) and `components` (D×F) float32, rows orthonormal — the file
+/// `base-station --pca` reads.
+pub fn write_pca_npz<const D: usize, const F: usize>(
+    path: &Path,
+    pca: &latentbki::Pca<D, F>,
+) -> Result<(), IoError> {
+    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let mut zip = zip::ZipWriter::new(BufWriter::new(file));
+    let mut write = || -> std::io::Result<()> {
+        let opts = zip::write::FileOptions::default();
+        zip.start_file("mean.npy", opts)?;
+        write_npy(&mut zip, &[F as u64], pca.mean)?;
+        zip.start_file("components.npy", opts)?;
+        write_npy(
+            &mut zip,
+            &[D as u64, F as u64],
+            pca.components.iter().flatten().copied(),
+        )?;
+        zip.finish()?.flush()
+    };
+    write().map_err(io_err(path))
+}
+
 /// A `.npz` archive open for reading (numpy's `savez` and `savez_compressed` files, and ours).
 pub struct NpzReader<R: Read + Seek> {
     zip: zip::ZipArchive<R>,

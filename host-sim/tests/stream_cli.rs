@@ -11,6 +11,21 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 use stream_common::*;
 
+/// Run `host-sim base-station <args>` to its end: (exit code, stdout, stderr).
+fn base_station<I, A>(args: I) -> (Option<i32>, String, String)
+where
+    I: IntoIterator<Item = A>,
+    A: AsRef<std::ffi::OsStr>,
+{
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .arg("base-station")
+        .args(args)
+        .output()
+        .unwrap();
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    (out.status.code(), text(&out.stdout), text(&out.stderr))
+}
+
 fn recorded_stream() -> Vec<u8> {
     let world = World::new(SummaryCodec::DEFAULT);
     let mut robot = RobotRig::new(&world, 4, 2.5);
@@ -29,24 +44,16 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
     let input = dir.path().join("robot.bin");
     std::fs::write(&input, recorded_stream()).unwrap();
     let map = dir.path().join("global.lbki");
-    let bin = env!("CARGO_BIN_EXE_host-sim");
-    let out = Command::new(bin)
-        .arg("base-station")
-        .arg(&input)
-        .arg("--map")
-        .arg(&map)
-        .arg("--ply")
-        .arg(dir.path().join("g.ply"))
-        .arg("--png")
-        .arg(dir.path().join("g"))
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (code, stdout, stderr) = base_station([
+        input.as_os_str(),
+        "--map".as_ref(),
+        map.as_os_str(),
+        "--ply".as_ref(),
+        dir.path().join("g.ply").as_os_str(),
+        "--png".as_ref(),
+        dir.path().join("g").as_os_str(),
+    ]);
+    assert_eq!(code, Some(0), "{stdout}\n{stderr}");
     assert!(stdout.contains("frames lost 0"), "{stdout}");
     assert!(stdout.contains("robot 4 session 1004"), "{stdout}");
     let saved = GlobalMap::<D>::load(&map).unwrap();
@@ -54,7 +61,7 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
     assert!(dir.path().join("g.ply").exists() && dir.path().join("g-uncertainty.png").exists());
 
     // Same stream on stdin, continuing the saved map: nothing merges twice.
-    let mut child = Command::new(bin)
+    let mut child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
         .args(["base-station", "-", "--map"])
         .arg(&map)
         .stdin(Stdio::piped())
@@ -76,40 +83,22 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
     // Garbage: a clear error, non-zero exit.
     let junk = dir.path().join("junk.bin");
     std::fs::write(&junk, b"hello, this is not a robot\n\0\x01\x02\0").unwrap();
-    let out = Command::new(bin)
-        .arg("base-station")
-        .arg(&junk)
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (code, _, stderr) = base_station([&junk]);
+    assert_ne!(code, Some(0));
     assert!(stderr.contains("no session header"), "{stderr}");
     // A PCA file that does not exist: the path in the error.
-    let out = Command::new(bin)
-        .arg("base-station")
-        .arg(&input)
-        .args(["--pca", "/nonexistent/pca.npz"])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/pca.npz"));
+    let (code, _, stderr) = base_station([
+        input.as_os_str(),
+        "--pca".as_ref(),
+        "/nonexistent/pca.npz".as_ref(),
+    ]);
+    assert_ne!(code, Some(0));
+    assert!(stderr.contains("/nonexistent/pca.npz"));
 }
 
 /// The PCA of the recorded stream's robots as the `--pca` file (`mean` 384, `components` 64 × 384).
 fn write_pca(path: &std::path::Path, pca: &latentbki::Pca<D, F>) {
-    use host_sim::npy_io::write_npy;
-    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
-    let opts = zip::write::FileOptions::default();
-    zip.start_file("mean.npy", opts).unwrap();
-    write_npy(&mut zip, &[F as u64], pca.mean).unwrap();
-    zip.start_file("components.npy", opts).unwrap();
-    write_npy(
-        &mut zip,
-        &[D as u64, F as u64],
-        pca.components.iter().flatten().copied(),
-    )
-    .unwrap();
-    zip.finish().unwrap();
+    host_sim::npy_io::write_pca_npz(path, pca).unwrap();
 }
 
 /// Run `base-station - <args>` with stdin open and silent: the command must fail on its options without
@@ -260,54 +249,40 @@ fn vocabulary_query_and_image_size_after_the_stream() {
     let world = World::new(SummaryCodec::DEFAULT);
     let pca = dir.path().join("pca.npz");
     write_pca(&pca, &world.pca);
-    let bin = env!("CARGO_BIN_EXE_host-sim");
     // Loaded up front, used at the end.
-    let out = Command::new(bin)
-        .arg("base-station")
-        .arg(&input)
-        .arg("--pca")
-        .arg(&pca)
-        .args(["--classes", "ground, road ,building", "--query", "road"])
-        .arg("--png")
-        .arg(dir.path().join("g"))
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (code, stdout, stderr) = base_station([
+        input.as_os_str(),
+        "--pca".as_ref(),
+        pca.as_os_str(),
+        "--classes".as_ref(),
+        "ground, road ,building".as_ref(),
+        "--query".as_ref(),
+        "road".as_ref(),
+        "--png".as_ref(),
+        dir.path().join("g").as_os_str(),
+    ]);
+    assert_eq!(code, Some(0), "{stdout}\n{stderr}");
     assert!(stdout.contains("  road: "), "{stdout}");
     assert!(dir.path().join("g-heat.png").exists());
     // Another PCA: refused once the robots' feature space is known.
     let mut other = world.pca.clone();
     other.mean[0] += 0.5;
     write_pca(&pca, &other);
-    let out = Command::new(bin)
-        .arg("base-station")
-        .arg(&input)
-        .arg("--pca")
-        .arg(&pca)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (code, _, stderr) = base_station([input.as_os_str(), "--pca".as_ref(), pca.as_os_str()]);
     assert!(
-        !out.status.success() && stderr.contains("feature-space id"),
+        code != Some(0) && stderr.contains("feature-space id"),
         "{stderr}"
     );
     // A scale the clap range allows, but too large for this map's width: a clear error, no abort.
-    let out = Command::new(bin)
-        .arg("base-station")
-        .arg(&input)
-        .arg("--png")
-        .arg(dir.path().join("big"))
-        .args(["--scale", "16384"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (code, _, stderr) = base_station([
+        input.as_os_str(),
+        "--png".as_ref(),
+        dir.path().join("big").as_os_str(),
+        "--scale".as_ref(),
+        "16384".as_ref(),
+    ]);
     assert!(
-        out.status.code() == Some(1) && stderr.contains("too large an image"),
+        code == Some(1) && stderr.contains("too large an image"),
         "{stderr}"
     );
     assert!(!dir.path().join("big-labels.png").exists());

@@ -147,6 +147,7 @@ fn check_feature_space(
     Ok(())
 }
 
+/// The `--pca` file, as [`crate::npy_io::write_pca_npz`] writes it (and numpy's `savez`).
 fn read_pca(path: &Path) -> Result<Box<Pca<DIM, FULL>>> {
     let mut npz = NpzReader::open(path)?;
     let mut array = |name: &str, len: usize| -> Result<Vec<f32>> {
