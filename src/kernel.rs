@@ -173,6 +173,12 @@ impl<const CAP: usize> KernelLut<CAP> {
         }
     }
 
+    /// Whether the weights depend on the voxel offset alone (one sub-cell): the table a gather of per-voxel
+    /// observation statistics needs ([`crate::obs::gather`]).
+    pub fn is_voxel_offset(&self) -> bool {
+        self.cells == 1
+    }
+
     /// Half-width of the filter in voxels.
     pub fn reach(&self) -> i32 {
         self.reach

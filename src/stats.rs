@@ -101,6 +101,28 @@ impl<const D: usize> VoxelStats<D> {
         self.lambda += k_bar;
     }
 
+    /// Combine with observation statistics seen through kernel weight `k` (the paper's update with
+    /// k̄ = k·n, ȳ = m, S̄ = k·S). `k · obs.count ≤ 0` leaves `self` unchanged.
+    #[inline]
+    pub fn absorb_observations(&mut self, k: f32, obs: &crate::obs::ObsStats<D>) {
+        let k_bar = k * obs.count;
+        if !(k_bar > 0.0) {
+            return;
+        }
+        let (gain, cross) = self.gains(k_bar);
+        for i in 0..D {
+            update_dim(
+                &mut self.mean[i],
+                &mut self.psi[i],
+                gain,
+                cross,
+                obs.mean[i],
+                k * obs.scatter[i],
+            );
+        }
+        self.lambda += k_bar;
+    }
+
     /// Combine with a batch's moments (the paper's update).
     #[inline]
     pub fn absorb(&mut self, batch: &Self) {
@@ -160,7 +182,14 @@ impl<const D: usize> VoxelStats<D> {
 /// One dimension of the update (§III-B), the single place it is written:
 /// μ += (k̄/λᵗ)(ȳ − μ), Ψ += S̄ + (λᵗ⁻¹k̄/λᵗ)(ȳ − μ)², with `gain` = k̄/λᵗ and `cross` = λᵗ⁻¹k̄/λᵗ.
 #[inline(always)]
-fn update_dim(mean: &mut f32, psi: &mut f32, gain: f32, cross: f32, y_bar: f32, s_bar: f32) {
+pub(crate) fn update_dim(
+    mean: &mut f32,
+    psi: &mut f32,
+    gain: f32,
+    cross: f32,
+    y_bar: f32,
+    s_bar: f32,
+) {
     let diff = y_bar - *mean; // ȳ − μᵗ⁻¹
     *mean += gain * diff;
     *psi += s_bar + cross * diff * diff;
