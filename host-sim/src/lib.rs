@@ -7,6 +7,7 @@ pub mod demo_link;
 pub mod eval;
 pub mod link;
 pub mod npy_io;
+pub mod obs_map;
 pub mod order;
 pub mod png_io;
 pub mod reference_map;
@@ -14,4 +15,5 @@ pub mod sim;
 #[cfg(feature = "encoder")]
 pub mod text_encoder;
 
+pub use obs_map::ObsMap;
 pub use reference_map::ReferenceMap;

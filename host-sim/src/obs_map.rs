@@ -1,0 +1,384 @@
+//! The host's fast f32 map: per-voxel observation statistics in dense blocks, posteriors gathered on demand.
+//!
+//! Why this shape: a point updates only its own voxel's (n, m, S) — one Welford step of D multiply-adds —
+//! and a posterior is a kernel-weighted gather of the f³ neighbours' statistics ([`latentbki::obs`], the
+//! core's math: [`ObsStats::merge_scaled`] and [`ObsStats::posterior`]). Voxels live in 8³ blocks found
+//! through one hash lookup; inside a block a voxel is an array index, so a gather's 27 neighbour lookups
+//! cost a few integer operations instead of 27 hash probes, and "every voxel in reach" is a bitmask per
+//! block. Results equal the literal paper update ([`crate::ReferenceMap`]) to f32 rounding (tests).
+//!
+//! Only the voxel-offset kernel can be gathered from per-voxel statistics; a sub-voxel configuration is
+//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — [`crate::ReferenceMap`] keeps that mode.
+
+use latentbki::nalgebra::Isometry3;
+use latentbki::{
+    locate, to_map_frame, ConfigError, GatherError, KernelLut, MapConfig, ObsLookup, ObsStats,
+    Prior, RejectionCounts, VoxelKey, VoxelStats,
+};
+use rustc_hash::FxHashMap;
+
+/// Voxels per block edge (a power of two).
+const EDGE: i32 = 8;
+const SHIFT: u32 = EDGE.trailing_zeros();
+const MASK: i32 = EDGE - 1;
+/// Voxels per block.
+const VOLUME: usize = (EDGE * EDGE * EDGE) as usize;
+/// 64-bit words of a block's bitmask.
+const WORDS: usize = VOLUME / 64;
+
+type BlockKey = [i32; 3];
+
+fn block_of(key: VoxelKey) -> (BlockKey, usize) {
+    let [x, y, z] = key.as_array();
+    let local = (x & MASK) | ((y & MASK) << SHIFT) | ((z & MASK) << (2 * SHIFT));
+    ([x >> SHIFT, y >> SHIFT, z >> SHIFT], local as usize)
+}
+
+fn voxel_of(block: BlockKey, local: usize) -> VoxelKey {
+    let l = local as i32;
+    VoxelKey::new(
+        (block[0] << SHIFT) | (l & MASK),
+        (block[1] << SHIFT) | ((l >> SHIFT) & MASK),
+        (block[2] << SHIFT) | (l >> (2 * SHIFT)),
+    )
+}
+
+/// Why an [`ObsMap`] cannot be built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ObsMapError {
+    /// The map configuration is invalid.
+    #[error("{0}")]
+    Config(#[from] ConfigError),
+    /// Sub-voxel kernels cannot be gathered from per-voxel statistics.
+    #[error("{0}")]
+    SubVoxelKernel(#[from] GatherError),
+    /// The filter reaches farther than one block.
+    #[error("filter reach {0} voxels exceeds the block edge {EDGE}")]
+    ReachTooLarge(i32),
+}
+
+/// An unbounded f32 map of per-voxel observation statistics.
+pub struct ObsMap<const D: usize> {
+    config: MapConfig,
+    lut: KernelLut,
+    prior: Prior,
+    /// Block key → index into `blocks`.
+    index: FxHashMap<BlockKey, u32>,
+    /// Per block: its key and, per voxel, 1 + its slot in `stats` (0 = not observed).
+    blocks: Vec<(BlockKey, Box<[u32; VOLUME]>)>,
+    keys: Vec<VoxelKey>,
+    stats: Vec<ObsStats<D>>,
+    rejections: RejectionCounts,
+    points: u64,
+}
+
+impl<const D: usize> ObsMap<D> {
+    /// An empty map.
+    pub fn new(config: MapConfig) -> Result<Self, ObsMapError> {
+        let lut = KernelLut::new(&config)?;
+        if !lut.is_voxel_offset() {
+            return Err(GatherError::SubVoxelKernel.into());
+        }
+        if lut.reach() > EDGE {
+            return Err(ObsMapError::ReachTooLarge(lut.reach()));
+        }
+        Ok(Self {
+            prior: config.prior(),
+            config,
+            lut,
+            index: FxHashMap::default(),
+            blocks: Vec::new(),
+            keys: Vec::new(),
+            stats: Vec::new(),
+            rejections: RejectionCounts::default(),
+            points: 0,
+        })
+    }
+
+    /// Integrate one batch of sensor-frame points with their features, seen from `pose` (sensor → map).
+    /// Returns how many points were integrated; the others are counted in [`Self::rejections`]. Points and
+    /// features are paired in order; an unpaired tail is counted too.
+    pub fn integrate(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        features: &[[f32; D]],
+    ) -> usize {
+        let mut accepted = 0;
+        let mut last: Option<(BlockKey, u32)> = None;
+        for (p, y) in points.iter().zip(features) {
+            let key = match locate(&self.lut, to_map_frame(pose, *p), y) {
+                Ok((key, _)) => key,
+                Err(r) => {
+                    self.rejections.count(r);
+                    continue;
+                }
+            };
+            let (bk, local) = block_of(key);
+            let b = match last {
+                Some((k, b)) if k == bk => b,
+                _ => {
+                    let b = self.block_index_or_insert(bk);
+                    last = Some((bk, b));
+                    b
+                }
+            };
+            let slot_ref = &mut self.blocks[b as usize].1[local];
+            if *slot_ref == 0 {
+                self.keys.push(key);
+                self.stats.push(ObsStats::EMPTY);
+                *slot_ref = self.stats.len() as u32;
+            }
+            let slot = *slot_ref as usize - 1;
+            self.stats[slot].add_point(y);
+            accepted += 1;
+        }
+        let unpaired = points.len().abs_diff(features.len());
+        for _ in 0..unpaired {
+            self.rejections.count(latentbki::Rejection::Unpaired);
+        }
+        self.points += accepted as u64;
+        accepted
+    }
+
+    fn block_index_or_insert(&mut self, bk: BlockKey) -> u32 {
+        let next = self.blocks.len() as u32;
+        let b = *self.index.entry(bk).or_insert(next);
+        if b == next {
+            self.blocks.push((bk, Box::new([0; VOLUME])));
+        }
+        b
+    }
+
+    /// Merge another voxel's observations in (e.g. from another robot or a saved map).
+    pub fn merge_observations(&mut self, key: VoxelKey, obs: &ObsStats<D>) {
+        if obs.is_empty() {
+            return;
+        }
+        let (bk, local) = block_of(key);
+        let b = self.block_index_or_insert(bk);
+        let slot_ref = &mut self.blocks[b as usize].1[local];
+        if *slot_ref == 0 {
+            self.keys.push(key);
+            self.stats.push(ObsStats::EMPTY);
+            *slot_ref = self.stats.len() as u32;
+        }
+        let slot = *slot_ref as usize - 1;
+        self.stats[slot].merge(obs);
+    }
+
+    /// The posterior of one voxel (the prior if nothing is in reach).
+    pub fn posterior(&self, key: VoxelKey) -> VoxelStats<D> {
+        // The table was checked to be voxel-offset at construction.
+        latentbki::gather(&self.lut, self, key)
+            .unwrap_or(ObsStats::EMPTY)
+            .posterior(&self.prior)
+    }
+
+    /// Bitmask, per block, of every voxel within the kernel's reach of an observed voxel.
+    fn reach_masks(&self) -> Vec<(BlockKey, [u64; WORDS])> {
+        let mut index: FxHashMap<BlockKey, u32> = FxHashMap::default();
+        let mut masks: Vec<(BlockKey, [u64; WORDS])> = Vec::new();
+        let offsets = self.lut.offsets();
+        for (bk, slots) in &self.blocks {
+            // Handles of the 27 blocks around this one, made on first use.
+            let mut near: [u32; 27] = [u32::MAX; 27];
+            for (local, &s) in slots.iter().enumerate() {
+                if s == 0 {
+                    continue;
+                }
+                let l = local as i32;
+                let (x, y, z) = (l & MASK, (l >> SHIFT) & MASK, l >> (2 * SHIFT));
+                for o in offsets {
+                    let (tx, ty, tz) = (
+                        x + i32::from(o[0]),
+                        y + i32::from(o[1]),
+                        z + i32::from(o[2]),
+                    );
+                    let (dx, dy, dz) = (tx >> SHIFT, ty >> SHIFT, tz >> SHIFT);
+                    let n = ((dz + 1) * 9 + (dy + 1) * 3 + (dx + 1)) as usize;
+                    if near[n] == u32::MAX {
+                        let nk = [bk[0] + dx, bk[1] + dy, bk[2] + dz];
+                        let next = masks.len() as u32;
+                        let m = *index.entry(nk).or_insert(next);
+                        if m == next {
+                            masks.push((nk, [0; WORDS]));
+                        }
+                        near[n] = m;
+                    }
+                    let t = ((tx & MASK) | ((ty & MASK) << SHIFT) | ((tz & MASK) << (2 * SHIFT)))
+                        as usize;
+                    masks[near[n] as usize].1[t / 64] |= 1 << (t % 64);
+                }
+            }
+        }
+        masks
+    }
+
+    /// Number of voxels within the kernel's reach of an observed voxel: every voxel the map can answer
+    /// with more than the prior.
+    pub fn in_reach_len(&self) -> usize {
+        self.reach_masks()
+            .iter()
+            .map(|(_, m)| m.iter().map(|w| w.count_ones() as usize).sum::<usize>())
+            .sum()
+    }
+
+    /// Call `f(key, posterior)` for every voxel within the kernel's reach of an observed voxel, in blocks
+    /// sorted by key (deterministic order). Each posterior is gathered from the neighbours' statistics
+    /// exactly as [`latentbki::gather`] does (same operations, same order: bit-identical results).
+    pub fn for_each_posterior(&self, mut f: impl FnMut(VoxelKey, &VoxelStats<D>)) {
+        let mut masks = self.reach_masks();
+        masks.sort_unstable_by_key(|(k, _)| *k);
+        let offsets = self.lut.offsets();
+        let weights = self.lut.weights(0);
+        // Neighbours other than the centre, as (offset, weight), in table order.
+        let ring: Vec<([i32; 3], f32)> = offsets
+            .iter()
+            .zip(weights)
+            .filter(|(o, _)| **o != [0, 0, 0])
+            .map(|(o, &k)| ([i32::from(o[0]), i32::from(o[1]), i32::from(o[2])], k))
+            .collect();
+        for (bk, mask) in &masks {
+            // The observed blocks around this one (None where nothing was observed).
+            let near: [Option<&[u32; VOLUME]>; 27] = core::array::from_fn(|n| {
+                let n = n as i32;
+                let nk = [
+                    bk[0] + n % 3 - 1,
+                    bk[1] + (n / 3) % 3 - 1,
+                    bk[2] + n / 9 - 1,
+                ];
+                self.index.get(&nk).map(|&b| &*self.blocks[b as usize].1)
+            });
+            let slot_at = |tx: i32, ty: i32, tz: i32| -> u32 {
+                let n = (((tz >> SHIFT) + 1) * 9 + ((ty >> SHIFT) + 1) * 3 + ((tx >> SHIFT) + 1))
+                    as usize;
+                match near[n] {
+                    Some(slots) => {
+                        slots[((tx & MASK) | ((ty & MASK) << SHIFT) | ((tz & MASK) << (2 * SHIFT)))
+                            as usize]
+                    }
+                    None => 0,
+                }
+            };
+            for (w, &word) in mask.iter().enumerate() {
+                let mut bits = word;
+                while bits != 0 {
+                    let local = w * 64 + bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let l = local as i32;
+                    let (x, y, z) = (l & MASK, (l >> SHIFT) & MASK, l >> (2 * SHIFT));
+                    let own = slot_at(x, y, z);
+                    let mut acc = if own == 0 {
+                        ObsStats::EMPTY
+                    } else {
+                        self.stats[own as usize - 1]
+                    };
+                    for &(o, k) in &ring {
+                        let s = slot_at(x + o[0], y + o[1], z + o[2]);
+                        if s != 0 {
+                            acc.merge_scaled(k, &self.stats[s as usize - 1]);
+                        }
+                    }
+                    f(voxel_of(*bk, local), &acc.posterior(&self.prior));
+                }
+            }
+        }
+    }
+
+    /// Every voxel in reach with its posterior, sorted by key.
+    pub fn posteriors_sorted(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
+        let mut out = Vec::new();
+        self.for_each_posterior(|k, s| out.push((k, *s)));
+        out.sort_unstable_by_key(|(k, _)| *k);
+        out
+    }
+
+    /// Observed voxels and their statistics (unordered).
+    pub fn observed_voxels(&self) -> impl Iterator<Item = (VoxelKey, &ObsStats<D>)> {
+        self.keys.iter().copied().zip(&self.stats)
+    }
+    /// The map's configuration.
+    pub fn config(&self) -> &MapConfig {
+        &self.config
+    }
+    /// Number of observed voxels (voxels a point fell in).
+    pub fn observed_len(&self) -> usize {
+        self.stats.len()
+    }
+    /// Points refused so far, by reason.
+    pub fn rejections(&self) -> RejectionCounts {
+        self.rejections
+    }
+    /// Points integrated so far.
+    pub fn points(&self) -> u64 {
+        self.points
+    }
+}
+
+impl<const D: usize> ObsLookup<D> for ObsMap<D> {
+    fn observed(&self, key: VoxelKey) -> Option<&ObsStats<D>> {
+        let (bk, local) = block_of(key);
+        let b = *self.index.get(&bk)?;
+        match self.blocks[b as usize].1[local] {
+            0 => None,
+            s => self.stats.get(s as usize - 1),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use latentbki::KernelMode;
+
+    #[test]
+    fn block_coordinates_round_trip_for_negative_keys() {
+        for key in [
+            VoxelKey::new(0, 0, 0),
+            VoxelKey::new(-1, -8, -9),
+            VoxelKey::new(7, 8, -1_000_003),
+            VoxelKey::new(1 << 29, -(1 << 29), 5),
+        ] {
+            let (b, l) = block_of(key);
+            assert_eq!(voxel_of(b, l), key);
+        }
+    }
+
+    #[test]
+    fn one_point_reaches_the_filter_cube() {
+        let mut map = ObsMap::<2>::new(MapConfig::default()).unwrap();
+        // Across a block corner, so the reach spans 8 blocks.
+        let n = map.integrate(
+            &Isometry3::identity(),
+            &[[-0.05, -0.05, -0.05]],
+            &[[1.0, 2.0]],
+        );
+        assert_eq!((n, map.observed_len(), map.in_reach_len()), (1, 1, 27));
+        let mut seen = 0;
+        map.for_each_posterior(|k, s| {
+            seen += 1;
+            assert_eq!(s.lambda, map.posterior(k).lambda);
+        });
+        assert_eq!(seen, 27);
+        let corner = map.posterior(VoxelKey::new(0, 0, 0));
+        assert!((corner.lambda - 0.4425).abs() < 1e-4);
+        assert_eq!(map.posterior(VoxelKey::new(5, 0, 0)).lambda, 0.0);
+    }
+
+    #[test]
+    fn sub_voxel_configurations_are_refused() {
+        let config = MapConfig::new(
+            0.1,
+            0.5,
+            3,
+            Prior::default(),
+            KernelMode::SubVoxel { cells: 2 },
+        )
+        .unwrap();
+        assert!(matches!(
+            ObsMap::<2>::new(config),
+            Err(ObsMapError::SubVoxelKernel(_))
+        ));
+    }
+}
