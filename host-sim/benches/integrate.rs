@@ -1,69 +1,24 @@
-//! `integrate`: 100k points into the quantized on-device map (f = 3, D = 64), and the f32 reference map for
-//! scale. (a) surface points: the real LiDAR tile, resampled with 2 cm jitter to 100k points; (b) uniform
+//! `integrate`: 100k points into the quantized on-device map (f = 3, D = 64), the host's observation map
+//! (and the gather of every posterior in reach), and the f32 reference map for scale. (a) surface points: the real LiDAR tile, resampled with 2 cm jitter to 100k points; (b) uniform
 //! random points in a 6 m cube (the worst case: almost every point alone in its voxel).
 //! Run: `cargo bench -p host-sim --bench integrate`.
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use host_sim::order::morton_order;
-use host_sim::sim::tile::Tile;
-use host_sim::ReferenceMap;
+use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::Isometry3;
-use latentbki::rand_xoshiro::rand_core::{RngCore, SeedableRng};
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
 use latentbki::{packed_len, Evicted, LocalMap, MapConfig, SinkFull};
 
-const D: usize = 64;
+const D: usize = host_sim::bench::D;
 const P: usize = packed_len(D);
 const CAP: usize = 65_000;
-const N: usize = 100_000;
 
-fn unit(rng: &mut Xoshiro256PlusPlus) -> f32 {
-    (rng.next_u32() >> 8) as f32 / (1u32 << 24) as f32
+fn surface() -> host_sim::bench::Batch {
+    host_sim::bench::surface().expect("built-in tile")
 }
 
-fn features(classes: &[u16], rng: &mut Xoshiro256PlusPlus) -> Vec<[f32; D]> {
-    let proto: Vec<[f32; D]> = (0..8)
-        .map(|_| core::array::from_fn(|_| unit(rng) - 0.5))
-        .collect();
-    classes
-        .iter()
-        .map(|&c| core::array::from_fn(|i| proto[c as usize % 8][i] + 0.05 * (unit(rng) - 0.5)))
-        .collect()
-}
-
-fn surface() -> (Vec<[f32; 3]>, Vec<[f32; D]>) {
-    let tile = Tile::builtin().expect("built-in tile");
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(1);
-    let mut pts = Vec::with_capacity(N);
-    let mut cls = Vec::with_capacity(N);
-    for _ in 0..N {
-        let i = rng.next_u32() as usize % tile.points.len();
-        let p = tile.points[i];
-        pts.push([
-            p[0] + 0.02 * (unit(&mut rng) - 0.5),
-            p[1] + 0.02 * (unit(&mut rng) - 0.5),
-            p[2] + 0.02 * (unit(&mut rng) - 0.5),
-        ]);
-        cls.push(tile.classes[i]);
-    }
-    let f = features(&cls, &mut rng);
-    (pts, f)
-}
-
-fn cube() -> (Vec<[f32; 3]>, Vec<[f32; D]>) {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(2);
-    let pts: Vec<[f32; 3]> = (0..N)
-        .map(|_| {
-            [
-                6.0 * unit(&mut rng),
-                6.0 * unit(&mut rng),
-                6.0 * unit(&mut rng),
-            ]
-        })
-        .collect();
-    let cls: Vec<u16> = pts.iter().map(|p| (p[0] / 1.5) as u16).collect();
-    let f = features(&cls, &mut rng);
-    (pts, f)
+fn cube() -> host_sim::bench::Batch {
+    host_sim::bench::cube()
 }
 
 fn discard(_: Evicted<'_, D>) -> Result<(), SinkFull> {
@@ -74,7 +29,7 @@ fn bench(c: &mut Criterion) {
     let config = MapConfig::default();
     let mut group = c.benchmark_group("integrate");
     group.sample_size(10);
-    group.throughput(Throughput::Elements(N as u64));
+    group.throughput(Throughput::Elements(host_sim::bench::N as u64));
     for (name, (pts, feats), window) in [("surface", surface(), 20.0f32), ("cube6m", cube(), 8.0)] {
         // An empty map whose window is centred on the first point.
         let fresh = || {
@@ -130,6 +85,23 @@ fn bench(c: &mut Criterion) {
                 },
                 BatchSize::PerIteration,
             )
+        });
+        // The host's fast path: per-voxel observation statistics (posteriors gathered when asked).
+        group.bench_function(format!("obs_map/{name}"), |b| {
+            b.iter_batched_ref(
+                || ObsMap::<D>::new(config).unwrap(),
+                |m| m.integrate(&Isometry3::identity(), &pts, &feats),
+                BatchSize::PerIteration,
+            )
+        });
+        let mut gathered = ObsMap::<D>::new(config).unwrap();
+        gathered.integrate(&Isometry3::identity(), &pts, &feats);
+        group.bench_function(format!("obs_map_every_posterior/{name}"), |b| {
+            b.iter(|| {
+                let mut sum = 0.0f32;
+                gathered.for_each_posterior(|_, p| sum += p.lambda);
+                sum
+            })
         });
         group.bench_function(format!("reference_map/{name}"), |b| {
             b.iter_batched_ref(

@@ -2,8 +2,8 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use host_sim::npy_io::{read_frame, read_poses, write_map_npz, Frame};
-use host_sim::ReferenceMap;
+use host_sim::npy_io::{read_frame, read_poses, write_map_npz, Compression, Frame};
+use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::Isometry3;
 use latentbki::{KernelMode, MapConfig, Prior};
 use std::path::PathBuf;
@@ -32,6 +32,8 @@ enum Command {
     Query(host_sim::eval::cli::QueryArgs),
     /// Receive robots' streams (serial port, file, pty or stdin) into the global map; save it, export PNG/PLY.
     BaseStation(host_sim::base_station::cli::BaseStationArgs),
+    /// Measure the headline speed figures on this machine (one core, medians): integrate, gather.
+    Bench(host_sim::bench::BenchArgs),
     /// Re-embed the vocabulary with the real text encoder and write the table (feature `encoder`).
     #[cfg(feature = "encoder")]
     EmbedVocab(EmbedVocabArgs),
@@ -105,8 +107,53 @@ struct IntegrateArgs {
     /// taken to be in the map frame already.
     #[arg(long)]
     poses: Option<PathBuf>,
+    /// Deflate the .npz members (numpy's `savez_compressed`; smaller, much slower to write). Default:
+    /// stored, as numpy's `savez`.
+    #[arg(long)]
+    compress: bool,
     #[command(flatten)]
     map: MapArgs,
+}
+
+/// The map `integrate` builds: per-voxel observation statistics gathered on output (voxel-offset kernel),
+/// or the literal paper update for the sub-voxel kernel, which per-voxel statistics cannot express.
+enum IntegrateMap<const D: usize> {
+    Observations(ObsMap<D>),
+    Reference(ReferenceMap<D>),
+}
+
+impl<const D: usize> IntegrateMap<D> {
+    fn new(config: MapConfig) -> Result<Self> {
+        Ok(match config.mode() {
+            KernelMode::VoxelOffset => Self::Observations(ObsMap::new(config)?),
+            KernelMode::SubVoxel { .. } => Self::Reference(ReferenceMap::new(config)?),
+        })
+    }
+    fn integrate(&mut self, pose: &Isometry3<f32>, points: &[[f32; 3]], features: &[[f32; D]]) {
+        match self {
+            Self::Observations(m) => m.integrate(pose, points, features),
+            Self::Reference(m) => m.integrate(pose, points, features),
+        };
+    }
+    fn points(&self) -> u64 {
+        match self {
+            Self::Observations(m) => m.points(),
+            Self::Reference(m) => m.points(),
+        }
+    }
+    fn rejections(&self) -> latentbki::RejectionCounts {
+        match self {
+            Self::Observations(m) => m.rejections(),
+            Self::Reference(m) => m.rejections(),
+        }
+    }
+    /// Every voxel in reach of an observation, with its posterior, sorted by key.
+    fn posteriors(&self) -> Vec<(latentbki::VoxelKey, latentbki::VoxelStats<D>)> {
+        match self {
+            Self::Observations(m) => m.posteriors_sorted(),
+            Self::Reference(m) => m.sorted().into_iter().map(|(k, s)| (k, *s)).collect(),
+        }
+    }
 }
 
 fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Frame) -> Result<()> {
@@ -125,7 +172,7 @@ fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Fra
         }
         None => vec![Isometry3::identity(); args.frames.len()],
     };
-    let mut map = ReferenceMap::<D>::new(config)?;
+    let mut map = IntegrateMap::<D>::new(config)?;
     let mut frame = Some(first);
     for (i, path) in args.frames.iter().enumerate() {
         let f = match frame.take() {
@@ -161,12 +208,19 @@ fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Fra
             args.out.display()
         );
     }
-    write_map_npz(&args.out, &map.sorted())?;
+    let voxels = map.posteriors();
+    let refs: Vec<_> = voxels.iter().map(|(k, s)| (*k, s)).collect();
+    let compression = if args.compress {
+        Compression::Deflated
+    } else {
+        Compression::Stored
+    };
+    write_map_npz(&args.out, &refs, compression)?;
     println!(
         "integrated {} points from {} frames into {} voxels (D = {D}); rejected {} ({reasons})",
         map.points(),
         args.frames.len(),
-        map.len(),
+        voxels.len(),
         r.total(),
     );
     println!("wrote {}", args.out.display());
@@ -190,6 +244,7 @@ fn main() -> Result<()> {
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
+        Command::Bench(args) => host_sim::bench::run(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
         #[cfg(feature = "encoder")]
         Command::EmbedVocab(args) => {

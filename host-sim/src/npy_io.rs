@@ -482,6 +482,7 @@ pub fn read_poses(path: &Path) -> Result<Vec<Isometry3<f32>>, IoError> {
 pub fn write_map_npz<const D: usize>(
     path: &Path,
     voxels: &[(VoxelKey, &VoxelStats<D>)],
+    compression: Compression,
 ) -> Result<(), IoError> {
     let file = std::fs::File::create(path).map_err(io_err(path))?;
     let mut zip = zip::ZipWriter::new(BufWriter::new(file));
@@ -491,7 +492,7 @@ pub fn write_map_npz<const D: usize>(
     let mean = voxels.iter().flat_map(|(_, s)| s.mean);
     let psi = voxels.iter().flat_map(|(_, s)| s.psi);
     let write = || -> std::io::Result<()> {
-        let opts = zip::write::FileOptions::default();
+        let opts = compression.options();
         zip.start_file("keys.npy", opts)?;
         write_npy(&mut zip, &[v, 3], keys)?;
         zip.start_file("lambda.npy", opts)?;
@@ -503,6 +504,29 @@ pub fn write_map_npz<const D: usize>(
         zip.finish()?.flush()
     };
     write().map_err(io_err(path))
+}
+
+/// How the members of a written `.npz` are stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Compression {
+    /// Stored as they are, like numpy's `savez`: fast to write and to read.
+    #[default]
+    Stored,
+    /// Deflated, like numpy's `savez_compressed`: smaller, ~10× slower to write.
+    Deflated,
+}
+
+impl Compression {
+    fn options(self) -> zip::write::FileOptions {
+        let method = match self {
+            Self::Stored => zip::CompressionMethod::Stored,
+            Self::Deflated => zip::CompressionMethod::Deflated,
+        };
+        // Large maps pass 4 GiB of members; Zip64 is written only where needed.
+        zip::write::FileOptions::default()
+            .compression_method(method)
+            .large_file(true)
+    }
 }
 
 /// Write a PCA as `.npz`: `mean` (F) and `components` (D×F) float32, rows orthonormal — the file

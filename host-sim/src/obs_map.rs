@@ -106,32 +106,45 @@ impl<const D: usize> ObsMap<D> {
     ) -> usize {
         let mut accepted = 0;
         let mut last: Option<(BlockKey, u32)> = None;
-        for (p, y) in points.iter().zip(features) {
-            let key = match locate(&self.lut, to_map_frame(pose, *p), y) {
-                Ok((key, _)) => key,
-                Err(r) => {
-                    self.rejections.count(r);
-                    continue;
+        // Two passes per chunk: first every point's slot (hash lookups, new voxels), then the Welford steps.
+        // The second pass knows all its addresses up front, so the processor overlaps the cache misses of
+        // a random-order batch instead of taking them one after another.
+        const CHUNK: usize = 64;
+        let mut slots = [(0u32, 0u32); CHUNK];
+        let n = points.len().min(features.len());
+        for start in (0..n).step_by(CHUNK) {
+            let end = (start + CHUNK).min(n);
+            let mut taken = 0;
+            for i in start..end {
+                let key = match locate(&self.lut, to_map_frame(pose, points[i]), &features[i]) {
+                    Ok((key, _)) => key,
+                    Err(r) => {
+                        self.rejections.count(r);
+                        continue;
+                    }
+                };
+                let (bk, local) = block_of(key);
+                let b = match last {
+                    Some((k, b)) if k == bk => b,
+                    _ => {
+                        let b = self.block_index_or_insert(bk);
+                        last = Some((bk, b));
+                        b
+                    }
+                };
+                let slot_ref = &mut self.blocks[b as usize].1[local];
+                if *slot_ref == 0 {
+                    self.keys.push(key);
+                    self.stats.push(ObsStats::EMPTY);
+                    *slot_ref = self.stats.len() as u32;
                 }
-            };
-            let (bk, local) = block_of(key);
-            let b = match last {
-                Some((k, b)) if k == bk => b,
-                _ => {
-                    let b = self.block_index_or_insert(bk);
-                    last = Some((bk, b));
-                    b
-                }
-            };
-            let slot_ref = &mut self.blocks[b as usize].1[local];
-            if *slot_ref == 0 {
-                self.keys.push(key);
-                self.stats.push(ObsStats::EMPTY);
-                *slot_ref = self.stats.len() as u32;
+                slots[taken] = (*slot_ref - 1, i as u32);
+                taken += 1;
             }
-            let slot = *slot_ref as usize - 1;
-            self.stats[slot].add_point(y);
-            accepted += 1;
+            for &(slot, i) in &slots[..taken] {
+                self.stats[slot as usize].add_point(&features[i as usize]);
+            }
+            accepted += taken;
         }
         let unpaired = points.len().abs_diff(features.len());
         for _ in 0..unpaired {

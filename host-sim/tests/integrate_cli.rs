@@ -1,7 +1,7 @@
 //! `host-sim integrate`: .npy frames in, .npz map out, read back; malformed input gives a clear error.
 
 use host_sim::npy_io::{read_map_npz, write_frame, write_npy};
-use host_sim::ReferenceMap;
+use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use latentbki::{MapConfig, VoxelKey};
 use std::process::Command;
@@ -51,6 +51,7 @@ fn integrate_round_trips_through_npy_and_npz() {
     let read_back = host_sim::npy_io::read_poses(&pose_file).unwrap();
     let mut paths = Vec::new();
     let mut expected = ReferenceMap::<D>::new(MapConfig::default()).unwrap();
+    let mut observations = ObsMap::<D>::new(MapConfig::default()).unwrap();
     for (i, pose) in read_back.iter().enumerate() {
         let (p, f) = frame(i as u32 + 1, 500);
         let path = dir.path().join(format!("frame{i}.npy"));
@@ -58,6 +59,7 @@ fn integrate_round_trips_through_npy_and_npz() {
         paths.push(path);
         let feats: Vec<[f32; D]> = f.chunks_exact(D).map(|c| c.try_into().unwrap()).collect();
         expected.integrate(pose, &p, &feats);
+        observations.integrate(pose, &p, &feats);
     }
     let out = dir.path().join("map.npz");
 
@@ -85,10 +87,26 @@ fn integrate_round_trips_through_npy_and_npz() {
         let v = expected
             .get(&VoxelKey::new(k[0], k[1], k[2]))
             .expect("voxel exists");
-        // The same code on the same input: bit-identical.
-        assert_eq!(map.lambda[i], v.lambda);
-        assert_eq!(&map.mean[i * D..(i + 1) * D], &v.mean[..]);
-        assert_eq!(&map.psi[i * D..(i + 1) * D], &v.psi[..]);
+        // The same code on the same input: bit-identical to the observation map's gather.
+        let g = observations.posterior(VoxelKey::new(k[0], k[1], k[2]));
+        assert_eq!(map.lambda[i], g.lambda);
+        assert_eq!(&map.mean[i * D..(i + 1) * D], &g.mean[..]);
+        assert_eq!(&map.psi[i * D..(i + 1) * D], &g.psi[..]);
+        // And the paper's literal batch-by-batch update to f32 rounding.
+        assert!((map.lambda[i] - v.lambda).abs() <= 1e-5 * v.lambda);
+        for d in 0..D {
+            let (m, p) = (map.mean[i * D + d], map.psi[i * D + d]);
+            assert!(
+                (m - v.mean[d]).abs() <= 1e-5 * (1.0 + v.mean[d].abs()),
+                "μ {m} vs {}",
+                v.mean[d]
+            );
+            assert!(
+                (p - v.psi[d]).abs() <= 1e-5 * v.psi[d],
+                "Ψ {p} vs {}",
+                v.psi[d]
+            );
+        }
     }
 }
 
