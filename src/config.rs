@@ -93,6 +93,9 @@ pub enum ConfigError {
     LutCapacity,
     /// A local map's window radius must be at least one voxel and at most 16,000 voxels.
     Window,
+    /// The on-device map stores per-voxel observation statistics, which cannot express the sub-voxel
+    /// kernel (it weighs each point by its position inside its voxel).
+    SubVoxelOnDevice,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -105,6 +108,9 @@ impl core::fmt::Display for ConfigError {
             Self::SubVoxelCells => "sub-voxel cells per axis must be between 1 and 8",
             Self::LutCapacity => "kernel lookup table capacity too small for this configuration",
             Self::Window => "window radius must be between 1 and 16000 voxels",
+            Self::SubVoxelOnDevice => {
+                "the on-device map needs the voxel-offset kernel (sub-voxel cells = 0)"
+            }
         })
     }
 }

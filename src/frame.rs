@@ -15,11 +15,11 @@
 //! [`SeqTracker`] (lost, duplicate and late frames of one session).
 
 use crate::key::VoxelKey;
+use crate::obs::ObsStats;
 use crate::sink::{Evicted, EvictionSink, SinkFull};
-use crate::stats::VoxelStats;
 use crate::wire::{
-    encode_body, encode_codes, encode_summary_head, DeltaBase, FrameHeader, LinkStats, Message,
-    SessionConfig, SummaryCodec, VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
+    encode_body, encode_codes, encode_summary_head, wire_count, DeltaBase, FrameHeader, LinkStats,
+    Message, SessionConfig, SummaryCodec, VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
 };
 
 /// Bytes a frame body of `body_len` bytes takes on the wire, at most: two delimiters, COBS overhead, CRC.
@@ -106,13 +106,13 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     stats: LinkStats,
 }
 
-/// Fixed part of a queue entry: key (3 × i32), residency (u32), λ (f32), all little-endian.
+/// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32), all little-endian.
 const ENTRY_HEAD: usize = 20;
 
 /// The fixed part of a queue entry.
-fn entry_head(key: VoxelKey, residency: u32, lambda: f32) -> [u8; ENTRY_HEAD] {
+fn entry_head(key: VoxelKey, residency: u32, count: u32) -> [u8; ENTRY_HEAD] {
     let [x, y, z] = key.as_array();
-    let words = [x as u32, y as u32, z as u32, residency, lambda.to_bits()];
+    let words = [x as u32, y as u32, z as u32, residency, count];
     let mut head = [0u8; ENTRY_HEAD];
     for (bytes, word) in head.chunks_exact_mut(4).zip(words) {
         bytes.copy_from_slice(&word.to_le_bytes());
@@ -120,13 +120,13 @@ fn entry_head(key: VoxelKey, residency: u32, lambda: f32) -> [u8; ENTRY_HEAD] {
     head
 }
 
-/// Key, residency and λ of a queue entry's fixed part.
-fn parse_entry_head(head: &[u8; ENTRY_HEAD]) -> (VoxelKey, u32, f32) {
+/// Key, residency and point count of a queue entry's fixed part.
+fn parse_entry_head(head: &[u8; ENTRY_HEAD]) -> (VoxelKey, u32, u32) {
     let word = |i: usize| u32::from_le_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]);
     (
         VoxelKey::new(word(0) as i32, word(4) as i32, word(8) as i32),
         word(12),
-        f32::from_bits(word(16)),
+        word(16),
     )
 }
 
@@ -415,12 +415,12 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                 else {
                     break;
                 };
-                let (key, residency, lambda) = parse_entry_head(head);
+                let (key, residency, points) = parse_entry_head(head);
                 let mut trial = base;
                 let Some(Ok(h)) = self
                     .scratch
                     .get_mut(used..)
-                    .map(|out| encode_summary_head(&mut trial, key, residency, true, lambda, out))
+                    .map(|out| encode_summary_head(&mut trial, key, residency, true, points, out))
                 else {
                     break;
                 };
@@ -442,28 +442,21 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                     if count == u16::MAX {
                         break;
                     }
-                    if !sendable(v.stats) {
+                    let Some(n) = sendable(v.obs) else {
                         live.next();
                         from_live += 1;
                         continue;
-                    }
+                    };
                     let mut trial = base;
                     let Some(Ok(h)) = self.scratch.get_mut(used..).map(|out| {
-                        encode_summary_head(
-                            &mut trial,
-                            v.key,
-                            v.residency,
-                            false,
-                            v.stats.lambda,
-                            out,
-                        )
+                        encode_summary_head(&mut trial, v.key, v.residency, false, n, out)
                     }) else {
                         break;
                     };
                     let Some(Ok(c)) = self
                         .scratch
                         .get_mut(used + h..)
-                        .map(|out| encode_codes(self.config.codec, v.stats, out))
+                        .map(|out| encode_codes(self.config.codec, v.obs, out))
                     else {
                         break;
                     };
@@ -502,20 +495,24 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 }
 
-/// Whether a summary of these statistics is one the decoder accepts (finite, λ > 0): the encoder never
-/// sends what the base station would refuse — a refused summary takes its whole frame with it.
-fn sendable<const D: usize>(stats: &VoxelStats<D>) -> bool {
-    stats.is_finite() && stats.lambda > 0.0
+/// The wire count of statistics the decoder accepts (valid, a whole count in 1..=2²⁴), or `None`: the
+/// encoder never sends what the base station would refuse — a refused summary takes its whole frame with it.
+fn sendable<const D: usize>(obs: &ObsStats<D>) -> Option<u32> {
+    if obs.is_valid() {
+        wire_count(obs.count)
+    } else {
+        None
+    }
 }
 
 impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameEncoder<D, QB, N> {
     /// Quantize the voxel into the queue now; refuse when the queue is full (or there is no session). A
     /// non-finite voxel is counted as invalid and dropped (the map must not keep retrying it).
     fn evict(&mut self, voxel: Evicted<'_, D>) -> Result<(), SinkFull> {
-        if !sendable(voxel.stats) {
+        let Some(count) = sendable(voxel.obs) else {
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
-        }
+        };
         if self.len == self.capacity {
             self.stats.refused = self.stats.refused.saturating_add(1);
             return Err(SinkFull);
@@ -527,8 +524,8 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
             .get_mut(bytes)
             .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
             .map(|(head, codes)| {
-                *head = entry_head(voxel.key, voxel.residency, voxel.stats.lambda);
-                encode_codes(codec, voxel.stats, codes)
+                *head = entry_head(voxel.key, voxel.residency, count);
+                encode_codes(codec, voxel.obs, codes)
             });
         if !matches!(written, Some(Ok(_))) {
             // Cannot happen: the codec was validated for D and the queue sized for whole entries.
@@ -541,15 +538,11 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
     }
 }
 
-/// The stats a live voxel is sent with; convenience for callers holding `(key, stats, residency)` tuples.
-pub fn live<const D: usize>(
-    key: VoxelKey,
-    stats: &VoxelStats<D>,
-    residency: u32,
-) -> Evicted<'_, D> {
+/// A live voxel as the encoder takes it; convenience for callers holding `(key, obs, residency)` tuples.
+pub fn live<const D: usize>(key: VoxelKey, obs: &ObsStats<D>, residency: u32) -> Evicted<'_, D> {
     Evicted {
         key,
-        stats,
+        obs,
         residency,
     }
 }
@@ -791,11 +784,11 @@ mod tests {
         SessionConfig::new(&MapConfig::default(), 8, SummaryCodec::DEFAULT, 0)
     }
 
-    fn voxel(i: i32) -> VoxelStats<8> {
-        VoxelStats {
-            lambda: 1.0 + i as f32,
+    fn voxel(i: i32) -> ObsStats<8> {
+        ObsStats {
+            count: 1.0 + i as f32,
             mean: core::array::from_fn(|d| (d as f32 - 3.5) * 0.1 + i as f32 * 0.01),
-            psi: [1.5; 8],
+            scatter: [1.5; 8],
         }
     }
 
@@ -826,7 +819,7 @@ mod tests {
     fn queue_refuses_when_full_and_tick_respects_the_budget() {
         let mut enc = Enc::new(config(), EncoderSettings::new(1, 2)).unwrap();
         let cap = enc.capacity();
-        let stats: [VoxelStats<8>; 64] = core::array::from_fn(|i| voxel(i as i32));
+        let stats: [ObsStats<8>; 64] = core::array::from_fn(|i| voxel(i as i32));
         for (i, s) in stats.iter().enumerate().take(cap) {
             assert_eq!(
                 enc.evict(live(VoxelKey::new(i as i32, 0, 0), s, i as u32)),
@@ -864,7 +857,7 @@ mod tests {
                         for s in b.iter::<8>(SummaryCodec::DEFAULT) {
                             let s = s.unwrap();
                             assert!(s.is_final);
-                            assert_eq!(s.stats.lambda, stats[s.key.x as usize].lambda);
+                            assert_eq!(s.obs.count, stats[s.key.x as usize].count);
                             keys.push(s.key.x).unwrap();
                         }
                     }
@@ -881,7 +874,7 @@ mod tests {
         let mut enc = Enc::new(config(), EncoderSettings::new(1, 2)).unwrap();
         let s = voxel(1);
         enc.evict(live(VoxelKey::new(0, 0, 0), &s, 1)).unwrap();
-        let lives: [VoxelStats<8>; 40] = core::array::from_fn(|i| voxel(i as i32));
+        let lives: [ObsStats<8>; 40] = core::array::from_fn(|i| voxel(i as i32));
         let mut out = Buf {
             data: [0; 8192],
             len: 0,
@@ -907,13 +900,13 @@ mod tests {
 
     #[test]
     fn live_voxels_the_decoder_would_refuse_are_skipped_not_sent() {
-        // λ = 0 (a slot holding only the prior) and NaN among good live voxels: a sent one would make the
+        // n = 0 (nothing observed) and NaN among good live voxels: a sent one would make the
         // base station refuse the whole frame, final summaries included.
         let mut enc = Enc::new(config(), EncoderSettings::new(1, 2)).unwrap();
         enc.evict(live(VoxelKey::new(0, 0, 0), &voxel(1), 1))
             .unwrap();
-        let mut lives: [VoxelStats<8>; 6] = core::array::from_fn(|i| voxel(i as i32));
-        lives[1].lambda = 0.0;
+        let mut lives: [ObsStats<8>; 6] = core::array::from_fn(|i| voxel(i as i32));
+        lives[1].count = 0.0;
         lives[4].mean[2] = f32::NAN;
         let mut out = Buf {
             data: [0; 8192],

@@ -1,98 +1,103 @@
-//! The on-device local map: a fixed pool of quantized voxels around the robot, no heap, nothing copied.
+//! The on-device local map: what was observed around the robot, in a fixed pool, no heap, nothing copied.
 //!
 //! Shape and why:
-//! - **Slots** hold quantized posteriors ([`crate::quant`]) and a key stored as 3 × i16, wrapped around the
-//!   window centre (the window is far smaller than 2¹⁶ voxels, so the full key is recovered exactly).
+//! - **Observations, not posteriors.** A voxel stores its own observation statistics (n, m, S)
+//!   ([`crate::obs`]): a point updates one voxel, not the f³ its kernel reaches, and a posterior is gathered
+//!   from the neighbours' statistics when asked ([`LocalMap::posterior`]). Voxels no point fell in take no
+//!   room, yet every voxel within the kernel's reach of a stored one can be answered.
+//! - **Hot voxels in f32, the rest quantized.** The `H` most recently observed voxels accumulate points in
+//!   f32 (one Welford step per point, no decoding); a voxel is quantized ([`crate::quant`]) only when it
+//!   cools down — its hot statistics merge into its codes (Chan's formula, exact) when another voxel needs
+//!   the hot entry. A voxel seen over several frames is re-encoded once per visit, not once per batch, and
+//!   the rounding error does not grow with the number of batches.
+//! - **Slots** hold the quantized statistics and a key stored as 3 × i16, wrapped around the window centre
+//!   (the window is far smaller than 2¹⁶ voxels, so the full key is recovered exactly).
 //! - **Index**: open addressing with linear probing over 2·CAP u16 entries (slot + 1, 0 = empty): O(1)
 //!   lookup for 4 bytes per voxel; deletion shifts back the few entries of its probe run, so no tombstones.
 //!   (A heapless `FnvIndexMap<VoxelKey, u16, N>` costs ~20 B per voxel; see the size test.)
 //! - **Ring of slots, CLOCK eviction**: when the pool is full, a hand sweeps the slots like a ring buffer and
-//!   evicts the first one not updated since the hand last passed (second chance) — the classic O(1)
-//!   approximation of least-recently-updated. Voxels pinned by the batch being applied are never evicted.
+//!   evicts the first one not observed since the hand last passed (second chance) — the classic O(1)
+//!   approximation of least-recently-observed. Hot voxels are never evicted for room.
 //! - **Window**: the map follows the robot; voxels farther than the window radius are evicted in place. A
 //!   move reads every key but writes only the evicted slots: nothing is copied.
-//! - **Every eviction goes to an [`EvictionSink`]**; if the sink refuses, the voxel stays and the refusal is
-//!   counted. Nothing is forgotten silently.
-//! - **Batches** are grouped by source voxel in a small f32 scratch (`G` groups, [`GROUPS`] by default:
-//!   ~17 KiB at D = 64 on a device; a host can afford hundreds, and each flush re-encodes its targets, so a
-//!   bigger scratch re-encodes shared neighbours less often); when it fills, the
-//!   groups are applied target by target: the raw sums ([`BatchSums`]) of every group in reach, through
-//!   its kernel weight, form the target's batch (k̄, ȳ, S̄); the voxel is decoded once, takes the paper's
-//!   batch update once, and is re-encoded once.
+//! - **Every eviction goes to an [`EvictionSink`]** with the voxel's observation statistics; if the sink
+//!   refuses, the voxel stays and the refusal is counted. Nothing is forgotten silently.
 
 use crate::batch::{locate, Rejection, RejectionCounts};
-use crate::config::{ConfigError, MapConfig};
+use crate::config::{ConfigError, MapConfig, Prior};
 use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
+use crate::obs::{gather, ObsLookup, ObsStats};
 use crate::quant::{Dither, QuantVoxel};
 use crate::sink::{Evicted, EvictionSink};
-use crate::stats::{BatchSums, VoxelStats};
-use half::f16;
+use crate::stats::VoxelStats;
 use nalgebra::Isometry3;
 
-/// Source-voxel groups held in the f32 batch scratch before they are applied (the default `G`).
-pub const GROUPS: usize = 32;
+/// Hot (f32) voxels by default (`H`): ≈ 17 KiB at D = 64.
+pub const HOT_VOXELS: usize = 32;
 
 /// Largest window radius in voxels: keeps every resident key within the i16 wrap range of the centre.
 pub const MAX_WINDOW_VOXELS: i32 = 16_000;
 
 const OCCUPIED: u8 = 1;
 const REFERENCED: u8 = 2;
-/// Bits 2..8 of `flags`: the flush round (1..=63) that pinned the slot; 0 = not pinned.
-const EPOCH_SHIFT: u8 = 2;
-const EPOCH_MAX: u8 = 0x3F;
 
 #[derive(Clone, Copy, Debug)]
 struct Slot<const D: usize, const P: usize> {
-    voxel: QuantVoxel<D, P>,
+    /// The statistics observed before the voxel last turned hot (its hot entry holds the rest).
+    codes: QuantVoxel<D, P>,
     key: [i16; 3],
+    /// 1 + its hot entry, 0 = cold.
+    hot: u8,
+    flags: u8,
     /// Full width, as [`Evicted::residency`] promises: the base station tells contributions of one voxel
     /// apart by it, so a 16-bit number would repeat after 65,536 allocations and a later residency of the
     /// same voxel could be taken for an earlier, closed one and dropped.
     residency: u32,
-    /// Kernel mass absorbed since the voxel was last streamed (for "most changed first").
-    unsent: f16,
-    flags: u8,
 }
 
 impl<const D: usize, const P: usize> Slot<D, P> {
     const EMPTY: Self = Self {
-        voxel: QuantVoxel::EMPTY,
+        codes: QuantVoxel::EMPTY,
         key: [0; 3],
-        residency: 0,
-        unsent: f16::ZERO,
+        hot: 0,
         flags: 0,
+        residency: 0,
     };
 }
 
-/// Why no slot could be had.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum NoSlot {
-    /// Every slot is pinned by the groups being applied: apply them first, then retry.
-    Pinned,
-    /// The sink refused the eviction (back-pressure).
-    Refused,
-}
-
+/// A voxel being observed now: its new points in f32.
 #[derive(Clone, Copy, Debug)]
-struct Group<const D: usize> {
+struct Hot<const D: usize> {
+    obs: ObsStats<D>,
     key: VoxelKey,
-    cell: u16,
-    sums: BatchSums<D>,
+    slot: u16,
+    referenced: bool,
 }
 
-/// What one call changed, for logs and tests.
+impl<const D: usize> Hot<D> {
+    const EMPTY: Self = Self {
+        obs: ObsStats::EMPTY,
+        key: VoxelKey::new(0, 0, 0),
+        slot: 0,
+        referenced: false,
+    };
+}
+
+/// What the map did so far, for logs and tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Counters {
     /// Points integrated, modulo 2³² (wrapping, so differences stay right on a robot that runs for days).
     pub points: u32,
-    /// Voxels handed to the sink (voxels holding only the prior are freed without it).
+    /// Voxels handed to the sink.
     pub evicted: u32,
     /// Evictions the sink refused (the voxel stayed).
     pub refused: u32,
-    /// Slot writes (allocation, update, eviction): a window move that copied the map would show here.
+    /// Slot writes (allocation, cooling, eviction): a window move that copied the map would show here.
     pub slots_written: u32,
+    /// Hot voxels cooled into their quantized slot.
+    pub cooled: u32,
 }
 
 /// A voxel of the map, decoded.
@@ -100,43 +105,37 @@ pub struct Counters {
 pub struct LiveVoxel<const D: usize> {
     /// Its key.
     pub key: VoxelKey,
-    /// Its posterior (decoded from the compact codes).
-    pub stats: VoxelStats<D>,
+    /// Its observation statistics (quantized part decoded, hot part merged).
+    pub obs: ObsStats<D>,
     /// Its residency number (see [`Evicted::residency`]).
     pub residency: u32,
-    /// Kernel mass absorbed since it was last marked sent.
-    pub unsent: f32,
 }
 
-/// A fixed-capacity quantized LatentBKI map of `CAP` voxels of dimension `D`; `P` = [`crate::quant::packed_len`]`(D)`;
-/// `G` source-voxel groups of batch scratch.
+/// A fixed-capacity map of `CAP` voxels of dimension `D` holding quantized observation statistics;
+/// `P` = [`crate::quant::packed_len`]`(D)`; `H` hot voxels accumulate in f32.
 ///
 /// Large: place it in a `static` (see [`LocalMap::EMPTY`] and [`LocalMap::configure`]) or a `Box` on a host.
-pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const G: usize = GROUPS> {
+pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: usize = HOT_VOXELS> {
     config: MapConfig,
     lut: KernelLut,
-    prior: VoxelStats<D>,
-    prior_code: QuantVoxel<D, P>,
     slots: [Slot<D, P>; CAP],
     index: [[u16; CAP]; 2],
     len: usize,
     free_hand: usize,
     clock_hand: usize,
-    groups: heapless::Vec<Group<D>, G>,
-    /// The group the previous point joined.
-    last_group: usize,
-    scratch: VoxelStats<D>,
-    /// The raw sums of the batch a target is absorbing.
-    batch: BatchSums<D>,
+    hot: [Hot<D>; H],
+    hot_len: usize,
+    hot_hand: usize,
+    /// The hot entry the previous point went to (sensors return points in scan order).
+    last_hot: usize,
+    /// Decoding scratch (a 516-byte temporary kept off the device stack).
+    scratch: ObsStats<D>,
     centre: VoxelKey,
     radius: i32,
-    epoch: u8,
     dither: Dither,
     next_residency: u32,
     rejections: RejectionCounts,
     counters: Counters,
-    mass: f32,
-    mass_carry: f32,
 }
 
 fn wrap(k: VoxelKey) -> [i16; 3] {
@@ -161,11 +160,11 @@ fn hash(k: VoxelKey) -> u32 {
     h ^ (h >> 16)
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<D, CAP, P, G> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
     const TABLE: usize = 2 * CAP;
     const CAP_OK: () = assert!(
-        CAP > 0 && CAP < u16::MAX as usize && G > 0,
-        "CAP must be in 1..65535 and G at least 1"
+        CAP > H && CAP < u16::MAX as usize && H > 0 && H < u8::MAX as usize,
+        "CAP must be in H+1..65535 and H in 1..255"
     );
 
     /// An unconfigured, empty map, for `static` placement; call [`Self::configure`] before use. Every byte
@@ -174,20 +173,18 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     pub const EMPTY: Self = Self {
         config: MapConfig::UNCONFIGURED,
         lut: KernelLut::EMPTY,
-        prior: VoxelStats::EMPTY,
-        prior_code: QuantVoxel::EMPTY,
         slots: [Slot::EMPTY; CAP],
         index: [[0; CAP]; 2],
         len: 0,
         free_hand: 0,
         clock_hand: 0,
-        groups: heapless::Vec::new(),
-        last_group: 0,
-        scratch: VoxelStats::EMPTY,
-        batch: BatchSums::EMPTY,
+        hot: [Hot::EMPTY; H],
+        hot_len: 0,
+        hot_hand: 0,
+        last_hot: 0,
+        scratch: ObsStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
         radius: 0,
-        epoch: 0,
         dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {
@@ -203,9 +200,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             evicted: 0,
             refused: 0,
             slots_written: 0,
+            cooled: 0,
         },
-        mass: 0.0,
-        mass_carry: 0.0,
     };
 
     /// (Re)configure in place: clears the map. `window_radius` is in metres around the robot.
@@ -216,22 +212,24 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             return Err(ConfigError::Window);
         }
         self.lut.rebuild(&config)?;
+        if !self.lut.is_voxel_offset() {
+            // Per-voxel statistics cannot express the sub-voxel kernel (see `crate::obs`).
+            self.lut = KernelLut::EMPTY;
+            return Err(ConfigError::SubVoxelOnDevice);
+        }
         self.config = config;
-        self.prior = VoxelStats::from_prior(&config.prior());
         self.dither = Dither::new(0x5EED_1234);
-        self.prior_code = QuantVoxel::encode(&self.prior, &mut self.dither);
         self.slots.iter_mut().for_each(|s| *s = Slot::EMPTY);
         self.index = [[0; CAP]; 2];
         self.len = 0;
         self.free_hand = 0;
         self.clock_hand = 0;
-        self.groups.clear();
-        self.last_group = 0;
+        self.hot_len = 0;
+        self.hot_hand = 0;
+        self.last_hot = 0;
         self.radius = radius as i32;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
-        self.mass = 0.0;
-        self.mass_carry = 0.0;
         Ok(())
     }
 
@@ -239,7 +237,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     pub fn config(&self) -> &MapConfig {
         &self.config
     }
-    /// Voxels held.
+    /// The prior of the posteriors this map gives.
+    pub fn prior(&self) -> Prior {
+        self.config.prior()
+    }
+    /// Voxels held (voxels a point fell in).
     pub fn len(&self) -> usize {
         self.len
     }
@@ -259,13 +261,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     pub fn counters(&self) -> Counters {
         self.counters
     }
-    /// Total kernel mass applied to voxels so far (Σ k̄; compensated f32 sum).
-    pub fn kernel_mass(&self) -> f32 {
-        self.mass
-    }
     /// Centre of the window (voxel key).
     pub fn centre(&self) -> VoxelKey {
         self.centre
+    }
+    /// The kernel table the map gathers posteriors with.
+    pub fn kernel(&self) -> &KernelLut {
+        &self.lut
     }
 
     // ----- index -------------------------------------------------------------------------------------
@@ -354,34 +356,19 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
 
     // Slot numbers come from the map's own index and hands, so they are always below CAP; the accessors
     // below still go through `get` so that no bounds-check panic is linked into the hot path (the
-    // firmware's `panic-never` build proves it). An out-of-range number reads as an unpinned empty slot.
-    // Plain indexing remains only where the bound is visible to the optimiser (loops over `0..CAP`, a
-    // position checked against `len` just before), which links no panic either.
+    // firmware's `panic-never` build proves it). An out-of-range number reads as an empty slot.
 
-    fn pinned(&self, s: usize) -> bool {
-        let e = self
-            .slots
-            .get(s)
-            .map_or(0, |slot| slot.flags >> EPOCH_SHIFT);
-        e != 0 && e == self.epoch
-    }
-
-    fn unpin(&mut self, s: usize) {
-        if let Some(slot) = self.slots.get_mut(s) {
-            slot.flags &= OCCUPIED | REFERENCED;
-        }
-    }
-
-    /// Start a flush round: a new pin epoch. Epochs run 1..=63; when they wrap, stale pins (targets of a
-    /// group that could not be placed) are cleared so an old pin never reads as current.
-    fn next_epoch(&mut self) {
-        if self.epoch >= EPOCH_MAX {
-            for s in 0..CAP {
-                self.unpin(s);
+    /// The voxel's statistics, quantized part decoded and hot part merged, into `self.scratch`.
+    fn gather_slot(&mut self, s: usize) {
+        let Some(slot) = self.slots.get(s) else {
+            self.scratch = ObsStats::EMPTY;
+            return;
+        };
+        slot.codes.decode_into(&mut self.scratch);
+        if let Some(h) = usize::from(slot.hot).checked_sub(1) {
+            if let Some(hot) = self.hot.get(h) {
+                self.scratch.merge(&hot.obs);
             }
-            self.epoch = 1;
-        } else {
-            self.epoch += 1;
         }
     }
 
@@ -391,12 +378,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             return false;
         };
         let key = unwrap(slot.key, self.centre);
-        // A voxel holding only the prior (its batch was refused) carries no observation: free it quietly.
-        if slot.voxel.lambda > self.prior.lambda {
-            slot.voxel.decode_into(&mut self.scratch);
+        self.gather_slot(s);
+        if !self.scratch.is_empty() {
             let evicted = Evicted {
                 key,
-                stats: &self.scratch,
+                obs: &self.scratch,
                 residency: slot.residency,
             };
             if sink.evict(evicted).is_err() {
@@ -404,6 +390,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 return false;
             }
             self.counters.evicted = self.counters.evicted.saturating_add(1);
+        }
+        if let Some(h) = usize::from(slot.hot).checked_sub(1) {
+            self.remove_hot(h);
         }
         if let Some((pos, _)) = self.find(key) {
             self.index_remove(pos);
@@ -416,8 +405,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         true
     }
 
-    /// A free slot for `k` (pinned for this flush): a never-used or freed slot if any, else CLOCK eviction.
-    fn alloc<S: EvictionSink<D>>(&mut self, k: VoxelKey, sink: &mut S) -> Result<usize, NoSlot> {
+    /// A free slot for `k`: a never-used or freed slot if any, else CLOCK eviction of a cold voxel.
+    /// `None` if the sink refused the eviction (back-pressure).
+    fn alloc<S: EvictionSink<D>>(&mut self, k: VoxelKey, sink: &mut S) -> Option<usize> {
         let s = if self.len < CAP {
             let mut s = self.free_hand;
             while self
@@ -430,45 +420,135 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             self.free_hand = if s + 1 == CAP { 0 } else { s + 1 };
             s
         } else {
-            let mut found = Err(NoSlot::Pinned);
+            // CAP > H: at most H slots are hot, so two sweeps find a cold one.
+            let mut found = None;
             for _ in 0..2 * CAP + 1 {
                 let s = self.clock_hand;
                 self.clock_hand = if s + 1 == CAP { 0 } else { s + 1 };
-                if self.pinned(s) {
-                    continue;
-                }
                 let Some(slot) = self.slots.get_mut(s) else {
                     continue;
                 };
+                if slot.hot != 0 {
+                    continue;
+                }
                 if slot.flags & REFERENCED != 0 {
                     slot.flags &= !REFERENCED;
                     continue;
                 }
-                found = if self.evict_slot(s, sink) {
-                    Ok(s)
-                } else {
-                    Err(NoSlot::Refused)
-                };
-                break; // a refusing sink will refuse the next one too
+                // A refusing sink will refuse the next one too.
+                found = self.evict_slot(s, sink).then_some(s);
+                break;
             }
             found?
         };
-        let Some(slot) = self.slots.get_mut(s) else {
-            return Err(NoSlot::Pinned);
-        };
+        let slot = self.slots.get_mut(s)?;
         *slot = Slot {
-            voxel: self.prior_code,
+            codes: QuantVoxel::EMPTY,
             key: wrap(k),
+            hot: 0,
+            flags: OCCUPIED | REFERENCED,
             residency: self.next_residency,
-            unsent: f16::ZERO,
-            flags: OCCUPIED | REFERENCED | (self.epoch << EPOCH_SHIFT),
         };
         self.next_residency = self.next_residency.wrapping_add(1);
         self.index_insert(k, s);
         self.len += 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
-        Ok(s)
+        Some(s)
     }
+
+    // ----- hot voxels --------------------------------------------------------------------------------
+
+    /// Merge hot entry `h` into its slot's codes (one decode, one exact merge, one encode) and mark the slot
+    /// cold. The entry itself is left for the caller to reuse or remove.
+    fn cool(&mut self, h: usize) {
+        let Some(hot) = self.hot.get(h) else { return };
+        let s = usize::from(hot.slot);
+        let Some(slot) = self.slots.get_mut(s) else {
+            return;
+        };
+        if slot.codes.count > 0.0 {
+            slot.codes.decode_into(&mut self.scratch);
+            self.scratch.merge(&hot.obs);
+            slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
+        } else {
+            slot.codes = QuantVoxel::encode(&hot.obs, &mut self.dither);
+        }
+        slot.hot = 0;
+        slot.flags |= REFERENCED;
+        self.counters.cooled = self.counters.cooled.saturating_add(1);
+        self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+    }
+
+    /// Drop hot entry `h` (its slot is being freed): the last entry moves into its place.
+    fn remove_hot(&mut self, h: usize) {
+        let last = self.hot_len.saturating_sub(1);
+        if h > last {
+            return;
+        }
+        if h != last {
+            let Some(&moved) = self.hot.get(last) else {
+                return;
+            };
+            if let Some(e) = self.hot.get_mut(h) {
+                *e = moved;
+            }
+            if let Some(slot) = self.slots.get_mut(usize::from(moved.slot)) {
+                slot.hot = h as u8 + 1;
+            }
+        }
+        self.hot_len = last;
+        if self.last_hot >= self.hot_len {
+            self.last_hot = 0;
+        }
+        if self.hot_hand >= self.hot_len {
+            self.hot_hand = 0;
+        }
+    }
+
+    /// A hot entry for slot `s` holding `key`: a free one, else the CLOCK choice among the hot, cooled.
+    fn make_hot(&mut self, s: usize, key: VoxelKey) -> usize {
+        let h = if self.hot_len < H {
+            self.hot_len += 1;
+            self.hot_len - 1
+        } else {
+            let mut h = self.hot_hand;
+            for _ in 0..2 * H + 1 {
+                h = self.hot_hand;
+                self.hot_hand = if h + 1 == H { 0 } else { h + 1 };
+                match self.hot.get_mut(h) {
+                    Some(e) if e.referenced => e.referenced = false,
+                    _ => break,
+                }
+            }
+            self.cool(h);
+            h
+        };
+        if let Some(e) = self.hot.get_mut(h) {
+            *e = Hot {
+                obs: ObsStats::EMPTY,
+                key,
+                slot: s as u16,
+                referenced: true,
+            };
+        }
+        if let Some(slot) = self.slots.get_mut(s) {
+            slot.hot = h as u8 + 1;
+        }
+        h
+    }
+
+    /// Cool every hot voxel: all statistics then sit in the quantized slots (e.g. before a long pause, or to
+    /// measure the quantized map alone). Observation statistics are unchanged up to the codes' rounding.
+    pub fn cool_all(&mut self) {
+        for h in 0..self.hot_len {
+            self.cool(h);
+        }
+        self.hot_len = 0;
+        self.hot_hand = 0;
+        self.last_hot = 0;
+    }
+
+    // ----- the window --------------------------------------------------------------------------------
 
     /// Whether a key is close enough to a centre to be stored wrapped (every axis within ±2¹⁵).
     fn wrap_safe(k: VoxelKey, centre: VoxelKey) -> bool {
@@ -480,16 +560,6 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         let r = i64::from(self.radius);
         k.distance_squared(self.centre) <= r * r
     }
-
-    fn add_mass(&mut self, m: f32) {
-        // Kahan summation: the total stays exact to f32 over millions of small terms.
-        let y = m - self.mass_carry;
-        let t = self.mass + y;
-        self.mass_carry = (t - self.mass) - y;
-        self.mass = t;
-    }
-
-    // ----- the window --------------------------------------------------------------------------------
 
     /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number
     /// evicted. Refused evictions stay (counted); if one of them would fall out of the key wrap range the
@@ -541,8 +611,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     // ----- integration -------------------------------------------------------------------------------
 
     /// Integrate one batch of sensor-frame points seen from `pose` (sensor → map): the window follows the
-    /// sensor, points are grouped and applied. Returns the number of points integrated; the others are
-    /// counted in [`Self::rejections`].
+    /// sensor, then every point. Returns the number of points integrated; the others are counted in
+    /// [`Self::rejections`].
     pub fn integrate<S: EvictionSink<D>>(
         &mut self,
         pose: &Isometry3<f32>,
@@ -552,221 +622,101 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     ) -> usize {
         let t = pose.translation.vector;
         self.move_window([t.x, t.y, t.z], sink);
-        let before = self.counters.points;
+        let mut taken = 0;
         for (p, y) in points.iter().zip(features) {
-            // A refusal is counted in `rejections`; nothing else to do here.
-            let _ = self.add_point(to_map_frame(pose, *p), y, sink);
+            // A refusal is counted in `rejections`.
+            if self.add_point(to_map_frame(pose, *p), y, sink).is_ok() {
+                taken += 1;
+            }
         }
         // A point without a feature (or a feature without a point) is counted, never silently dropped.
         for _ in 0..points.len().abs_diff(features.len()) {
             self.rejections.count(Rejection::Unpaired);
         }
-        self.end_batch(sink);
-        // Points the map took: accepted into the batch and not refused when their group was applied.
-        self.counters.points.wrapping_sub(before) as usize
+        taken
     }
 
-    /// Add one map-frame point to the current batch (applied when the scratch fills or at
-    /// [`Self::end_batch`]). `Ok` means accepted into the batch: if the map then has no room for its
-    /// voxel group, the group's points are refused and counted as [`Rejection::NoRoom`].
+    /// Add one map-frame point: `Ok` means its voxel took it. Refusals are counted in [`Self::rejections`]
+    /// ([`Rejection::NoRoom`] when the pool is full and the sink refuses the eviction that would make room).
     pub fn add_point<S: EvictionSink<D>>(
         &mut self,
         position: [f32; 3],
         feature: &[f32; D],
         sink: &mut S,
     ) -> Result<(), Rejection> {
-        if self.lut.offsets().is_empty() {
-            // Not configured (`EMPTY`): there is no kernel to spread the point with, so no room for it.
-            self.rejections.count(Rejection::NoRoom);
-            return Err(Rejection::NoRoom);
-        }
-        let located = locate(&self.lut, position, feature).and_then(|(key, cell)| {
-            if self.in_window(key) {
-                Ok((key, cell))
-            } else {
-                Err(Rejection::OutsideWindow)
+        match self.take_point(position, feature, sink) {
+            Ok(()) => {
+                self.counters.points = self.counters.points.wrapping_add(1);
+                Ok(())
             }
-        });
-        let (key, cell) = match located {
-            Ok(at) => at,
             Err(r) => {
                 self.rejections.count(r);
-                return Err(r);
-            }
-        };
-        // Sensors return points in scan order: the group of the previous point is the likeliest match, then
-        // the newest groups.
-        let same = |g: &Group<D>| g.key == key && g.cell == cell;
-        let found = match self.groups.get(self.last_group) {
-            Some(g) if same(g) => Some(self.last_group),
-            _ => self.groups.iter().rposition(same),
-        };
-        let g = match found {
-            Some(g) => g,
-            None => {
-                if self.groups.is_full() {
-                    self.apply_groups(sink);
-                }
-                let group = Group {
-                    key,
-                    cell,
-                    sums: BatchSums::EMPTY,
-                };
-                // Cannot fail: the scratch was just emptied if it was full. Should it, the point is
-                // refused and counted, never added to another group.
-                if self.groups.push(group).is_err() {
-                    self.rejections.count(Rejection::NoRoom);
-                    return Err(Rejection::NoRoom);
-                }
-                self.groups.len() - 1
-            }
-        };
-        self.last_group = g;
-        match self.groups.get_mut(g) {
-            Some(group) => group.sums.add_point(feature),
-            None => {
-                // Unreachable: `g` was just found or pushed.
-                self.rejections.count(Rejection::NoRoom);
-                return Err(Rejection::NoRoom);
+                Err(r)
             }
         }
-        self.counters.points = self.counters.points.wrapping_add(1);
+    }
+
+    fn take_point<S: EvictionSink<D>>(
+        &mut self,
+        position: [f32; 3],
+        feature: &[f32; D],
+        sink: &mut S,
+    ) -> Result<(), Rejection> {
+        if self.lut.offsets().is_empty() {
+            // Not configured (`EMPTY`): no room for anything.
+            return Err(Rejection::NoRoom);
+        }
+        let (key, _) = locate(&self.lut, position, feature)?;
+        if !self.in_window(key) {
+            return Err(Rejection::OutsideWindow);
+        }
+        let h = match self.hot.get(self.last_hot) {
+            Some(e) if self.last_hot < self.hot_len && e.key == key => self.last_hot,
+            _ => {
+                let h = match self.find(key) {
+                    Some((_, s)) => match self.slots.get(s).map_or(0, |slot| slot.hot) {
+                        0 => self.make_hot(s, key),
+                        h => usize::from(h - 1),
+                    },
+                    None => {
+                        let s = self.alloc(key, sink).ok_or(Rejection::NoRoom)?;
+                        self.make_hot(s, key)
+                    }
+                };
+                self.last_hot = h;
+                h
+            }
+        };
+        let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
+        e.obs.add_point(feature);
+        e.referenced = true;
         Ok(())
     }
 
-    /// Apply what remains of the current batch.
-    pub fn end_batch<S: EvictionSink<D>>(&mut self, sink: &mut S) {
-        self.apply_groups(sink);
-    }
-
-    /// Apply the grouped scratch in rounds: (A) give every voxel a group reaches a slot, pinned against
-    /// eviction — when the pool runs out of unpinned slots, the groups placed so far are applied first and
-    /// the rest wait for the next round; a group is refused (its points counted as `NoRoom`) only if the
-    /// sink refuses evictions or the pool cannot hold one group's reach; (B) visit each reached voxel once —
-    /// owned by the first group that reaches it — decode it, absorb every placed group in reach, re-encode.
-    fn apply_groups<S: EvictionSink<D>>(&mut self, sink: &mut S) {
-        while !self.groups.is_empty() {
-            self.next_epoch();
-            let placed = self.place_groups(sink);
-            self.absorb_placed(placed);
-            // Drop the applied prefix, keeping the waiting groups in order.
-            let n = self.groups.len();
-            let placed = placed.min(n);
-            self.groups.copy_within(placed.., 0);
-            self.groups.truncate(n - placed);
-        }
-    }
-
-    /// Pass A: pin slots for groups from the front; returns how many are placed.
-    fn place_groups<S: EvictionSink<D>>(&mut self, sink: &mut S) -> usize {
-        let mut placed = 0;
-        while let Some(&Group { key, cell, .. }) = self.groups.get(placed) {
-            let mut result = Ok(());
-            for j in 0..self.lut.offsets().len() {
-                if self.lut.weights(cell).get(j).copied().unwrap_or(0.0) <= 0.0 {
-                    continue;
-                }
-                let t = key.offset(self.lut.offsets()[j]);
-                match self.find(t) {
-                    Some((_, s)) => {
-                        if let Some(slot) = self.slots.get_mut(s) {
-                            let f = &mut slot.flags;
-                            *f = (*f & (OCCUPIED | REFERENCED)) | (self.epoch << EPOCH_SHIFT);
-                        }
-                    }
-                    None => {
-                        if let Err(e) = self.alloc(t, sink) {
-                            result = Err(e);
-                            break;
-                        }
-                    }
-                }
-            }
-            match result {
-                Ok(()) => placed += 1,
-                Err(NoSlot::Pinned) if placed > 0 => break,
-                Err(_) => {
-                    // Refuse the group: count its points, close the gap (a memmove, not a ~0.5 KB
-                    // group on the stack as `Vec::remove` would return).
-                    let len = self.groups.len();
-                    if placed < len {
-                        let n = self.groups[placed].sums.weight as u32;
-                        self.rejections.no_room = self.rejections.no_room.saturating_add(n);
-                        self.counters.points = self.counters.points.wrapping_sub(n);
-                        self.groups.copy_within(placed + 1.., placed);
-                        self.groups.truncate(len - 1);
-                    }
-                }
-            }
-        }
-        placed
-    }
-
-    /// Pass B over the placed groups `..placed`: every target is visited once, by the first group that
-    /// reaches it (pass A pinned all of them; a visited target is unpinned, so a later group that reaches
-    /// it skips it). It is decoded, absorbs every placed group from this one on (an earlier group reaching
-    /// it would have visited it), and is re-encoded once.
-    fn absorb_placed(&mut self, placed: usize) {
-        for g in 0..placed {
-            let Some(&Group { key, cell, .. }) = self.groups.get(g) else {
-                break;
-            };
-            for j in 0..self.lut.offsets().len() {
-                if self.lut.weights(cell).get(j).copied().unwrap_or(0.0) <= 0.0 {
-                    continue;
-                }
-                let t = key.offset(self.lut.offsets()[j]);
-                let Some((_, s)) = self.find(t) else { continue };
-                if !self.pinned(s) {
-                    continue; // visited by an earlier group of this round
-                }
-                self.unpin(s);
-                // The target's batch: every placed group in reach, through its kernel weight.
-                let mut first = true;
-                for grp in self.groups.get(g..placed).unwrap_or_default() {
-                    let w = self.lut.weight_at(
-                        grp.cell,
-                        t.x - grp.key.x,
-                        t.y - grp.key.y,
-                        t.z - grp.key.z,
-                    );
-                    if w > 0.0 {
-                        if first {
-                            self.batch.set_scaled(w, &grp.sums);
-                            first = false;
-                        } else {
-                            self.batch.add_scaled(w, &grp.sums);
-                        }
-                    }
-                }
-                if first {
-                    continue; // unreachable: group g reaches t
-                }
-                let mass = self.batch.weight;
-                let Some(slot) = self.slots.get_mut(s) else {
-                    continue; // unreachable: `find` returned it
-                };
-                slot.voxel.decode_into(&mut self.scratch);
-                self.scratch.absorb_sums(&self.batch);
-                slot.voxel = slot.voxel.reencode(&self.scratch, &mut self.dither);
-                slot.unsent = f16::from_f32(slot.unsent.to_f32() + mass);
-                slot.flags |= REFERENCED;
-                self.counters.slots_written = self.counters.slots_written.saturating_add(1);
-                self.add_mass(mass);
-            }
-        }
-    }
+    /// End of a batch. Nothing is deferred — every accepted point is already in its voxel — so this does
+    /// nothing; it remains so that callers written for batch-deferring maps keep their shape.
+    pub fn end_batch<S: EvictionSink<D>>(&mut self, _sink: &mut S) {}
 
     // ----- reading -----------------------------------------------------------------------------------
 
-    /// The decoded posterior of a voxel, if held.
-    pub fn get(&self, key: VoxelKey) -> Option<VoxelStats<D>> {
+    /// The observation statistics of a voxel, if held.
+    pub fn get(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         if !Self::wrap_safe(key, self.centre) {
             return None; // its wrapped form could alias a resident key
         }
-        self.find(key)
-            .and_then(|(_, s)| self.slots.get(s))
-            .map(|slot| slot.voxel.decode())
+        let (_, s) = self.find(key)?;
+        self.slots.get(s).map(|slot| self.decode_slot(slot))
+    }
+
+    fn decode_slot(&self, slot: &Slot<D, P>) -> ObsStats<D> {
+        let mut obs = slot.codes.decode();
+        if let Some(hot) = usize::from(slot.hot)
+            .checked_sub(1)
+            .and_then(|h| self.hot.get(h))
+        {
+            obs.merge(&hot.obs);
+        }
+        obs
     }
 
     /// Every held voxel, decoded.
@@ -776,41 +726,54 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
             .filter(|s| s.flags & OCCUPIED != 0)
             .map(|s| LiveVoxel {
                 key: unwrap(s.key, self.centre),
-                stats: s.voxel.decode(),
+                obs: self.decode_slot(s),
                 residency: s.residency,
-                unsent: s.unsent.to_f32(),
             })
     }
 
-    /// The held voxel with the most kernel mass absorbed since it was last marked sent (for streaming the
-    /// most changed voxels first); `None` if nothing changed.
-    pub fn most_changed(&self) -> Option<LiveVoxel<D>> {
-        let slot = self
-            .slots
+    /// The voxels being observed now (the hot ones), decoded: what a link with spare bytes streams as live
+    /// updates — the base station replaces a live update by the next one of the same residency.
+    pub fn hot_voxels(&self) -> impl Iterator<Item = LiveVoxel<D>> + '_ {
+        self.hot
             .iter()
-            .filter(|s| s.flags & OCCUPIED != 0 && s.unsent.to_f32() > 0.0)
-            .max_by(|a, b| a.unsent.to_f32().total_cmp(&b.unsent.to_f32()))?;
-        Some(LiveVoxel {
-            key: unwrap(slot.key, self.centre),
-            stats: slot.voxel.decode(),
-            residency: slot.residency,
-            unsent: slot.unsent.to_f32(),
-        })
+            .take(self.hot_len)
+            .filter_map(|h| self.slots.get(usize::from(h.slot)))
+            .map(|s| LiveVoxel {
+                key: unwrap(s.key, self.centre),
+                obs: self.decode_slot(s),
+                residency: s.residency,
+            })
     }
 
-    /// Mark a voxel as streamed: its unsent mass returns to zero.
-    pub fn mark_sent(&mut self, key: VoxelKey) {
-        if !Self::wrap_safe(key, self.centre) {
-            return; // its wrapped form could alias a resident key
-        }
-        if let Some(slot) = self.find(key).and_then(|(_, s)| self.slots.get_mut(s)) {
-            slot.unsent = f16::ZERO;
-        }
+    /// The posterior of any voxel, gathered from the held voxels in the kernel's reach (the prior if none).
+    pub fn posterior(&self, key: VoxelKey) -> VoxelStats<D> {
+        // The table is voxel-offset (checked in `configure`); an unconfigured map gathers nothing.
+        gather(&self.lut, self, key)
+            .unwrap_or(ObsStats::EMPTY)
+            .posterior(&self.config.prior())
     }
 
-    /// The prior of an unobserved voxel.
-    pub fn prior(&self) -> &VoxelStats<D> {
-        &self.prior
+    /// How many voxels the map can answer with more than the prior: those within the kernel's reach of a
+    /// held voxel. Counted without memory: a voxel in reach is counted once, by the first held voxel of its
+    /// neighbourhood in the table's order (O(len · f⁶) lookups — a report, not for the hot path).
+    pub fn answerable(&self) -> usize {
+        let offsets = self.lut.offsets();
+        let mut n = 0;
+        for slot in self.slots.iter().filter(|s| s.flags & OCCUPIED != 0) {
+            let own = unwrap(slot.key, self.centre);
+            for o in offsets {
+                let target = own.offset(*o);
+                // The first held voxel around `target`, offsets in table order (the set is symmetric).
+                let first = offsets
+                    .iter()
+                    .map(|p| target.offset(*p))
+                    .find(|k| self.find(*k).is_some());
+                if first == Some(own) {
+                    n += 1;
+                }
+            }
+        }
+        n
     }
 
     /// Lookup cost: (mean, longest) probe run over the held keys, in table entries. At the index's ≤ 50 %
@@ -831,4 +794,12 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
     /// Bytes one voxel costs: its slot plus its share of the index.
     pub const BYTES_PER_VOXEL: usize =
         core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
+}
+
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize> ObsLookup<D>
+    for LocalMap<D, CAP, P, H>
+{
+    fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
+        self.get(key)
+    }
 }

@@ -127,8 +127,8 @@ impl<const D: usize> ObsStats<D> {
 
 /// Read access to a map of per-voxel observation statistics.
 pub trait ObsLookup<const D: usize> {
-    /// The observations of voxel `key`, if any point fell in it.
-    fn observed(&self, key: VoxelKey) -> Option<&ObsStats<D>>;
+    /// The observations of voxel `key`, if any point fell in it (by value: a quantized map decodes them).
+    fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>>;
 }
 
 /// Why a gather cannot be done.
@@ -166,16 +166,13 @@ pub fn gather<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
     if !lut.is_voxel_offset() {
         return Err(GatherError::SubVoxelKernel);
     }
-    let mut acc = match map.observed(target) {
-        Some(own) => *own,
-        None => ObsStats::EMPTY,
-    };
+    let mut acc = map.observed(target).unwrap_or(ObsStats::EMPTY);
     for (&o, &k) in lut.offsets().iter().zip(lut.weights(0)) {
         if o == [0, 0, 0] {
             continue;
         }
         if let Some(obs) = map.observed(target.offset(o)) {
-            acc.merge_scaled(k, obs);
+            acc.merge_scaled(k, &obs);
         }
     }
     Ok(acc)
@@ -199,8 +196,8 @@ mod tests {
     /// A tiny map for tests: a fixed list of (key, stats).
     struct List<const D: usize>(&'static [(VoxelKey, ObsStats<D>)]);
     impl<const D: usize> ObsLookup<D> for List<D> {
-        fn observed(&self, key: VoxelKey) -> Option<&ObsStats<D>> {
-            self.0.iter().find(|(k, _)| *k == key).map(|(_, s)| s)
+        fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
+            self.0.iter().find(|(k, _)| *k == key).map(|(_, s)| *s)
         }
     }
 

@@ -13,7 +13,7 @@
 //! round-to-nearest would drop every such update; dithered rounding keeps them in expectation. The dither
 //! comes from a per-map xorshift generator, so results are reproducible.
 
-use crate::stats::VoxelStats;
+use crate::obs::ObsStats;
 use half::f16;
 
 // Widths chosen by measurement on the real LiDAR tile (host-sim/tests/local_map_accuracy.rs, D = 64,
@@ -67,11 +67,11 @@ impl Dither {
     }
 }
 
-/// A voxel's posterior in compact form. `P` must be [`packed_len`]`(D)`.
+/// A voxel's observation statistics (n, m, S) in compact form. `P` must be [`packed_len`]`(D)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QuantVoxel<const D: usize, const P: usize> {
-    /// λ, exact.
-    pub lambda: f32,
+    /// n, exact.
+    pub count: f32,
     mu_scale: f16,
     psi_base: u16,
     codes: [u8; P],
@@ -138,26 +138,27 @@ fn psi_key(psi: f32, dither: u8) -> u32 {
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     const CHECK: () = assert!(P == packed_len(D), "P must be packed_len(D)");
 
-    /// The code of nothing (λ = 0, μ = 0, Ψ = 0).
+    /// The code of nothing (n = 0, m = 0, S = 0).
     pub const EMPTY: Self = Self {
-        lambda: 0.0,
+        count: 0.0,
         mu_scale: f16::ZERO,
         psi_base: 0,
         codes: [0; P],
     };
 
-    /// Encode a posterior (non-finite or negative inputs are clamped: callers only pass finite posteriors).
-    pub fn encode(stats: &VoxelStats<D>, dither: &mut Dither) -> Self {
+    /// Encode observation statistics (non-finite or negative inputs are clamped: callers only pass valid
+    /// statistics).
+    pub fn encode(stats: &ObsStats<D>, dither: &mut Dither) -> Self {
         Self::EMPTY.reencode(stats, dither)
     }
 
-    /// Encode an updated posterior of this voxel, keeping its μ scale when it still fits.
+    /// Encode updated statistics of this voxel, keeping its mean's scale when it still fits.
     ///
     /// Why: a new scale puts every dimension on a new grid, and re-rounding all of them at every update makes
     /// the stored μ drift like a random walk. On an unchanged grid an unchanged value re-encodes exactly and a
     /// small update adds only noise proportional to its size. So the scale changes only when μ outgrows it or
     /// shrinks below a quarter of it, and a new scale gets 25 % headroom.
-    pub fn reencode(&self, stats: &VoxelStats<D>, dither: &mut Dither) -> Self {
+    pub fn reencode(&self, stats: &ObsStats<D>, dither: &mut Dither) -> Self {
         let () = Self::CHECK;
         // Maxima on the bit patterns: for finite floats |a| < |b| ⟺ (bits & 0x7FFF_FFFF) orders the same as
         // integers, and on a Cortex-M4 an integer compare-and-select is 4 instructions where a float one is 6
@@ -180,9 +181,9 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let scale = mu_scale.to_f32();
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
 
-        // Ψ ≥ 0, and a negative value (sign bit set) must not count: as i32 it is negative.
+        // S ≥ 0, and a negative value (sign bit set) must not count: as i32 it is negative.
         let mut psi_max_bits = 0i32;
-        for &v in &stats.psi {
+        for &v in &stats.scatter {
             let b = v.to_bits() as i32;
             if b > psi_max_bits {
                 psi_max_bits = b;
@@ -209,7 +210,10 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // One dither step serves two dimensions: bytes 0 and 1 for μ and Ψ of the first, 2 and 3 of the second.
         let mut mu_codes = [0u8; D];
         let mut psi_codes = [0u8; D];
-        let pairs = stats.mean.chunks_exact(2).zip(stats.psi.chunks_exact(2));
+        let pairs = stats
+            .mean
+            .chunks_exact(2)
+            .zip(stats.scatter.chunks_exact(2));
         for (((m, p), mc), pc) in pairs
             .zip(mu_codes.chunks_exact_mut(2))
             .zip(psi_codes.chunks_exact_mut(2))
@@ -224,14 +228,14 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let d = dither.next();
             let i = D - 1;
             mu_codes[i] = mu_code(stats.mean[i], d);
-            psi_codes[i] = psi_code(stats.psi[i], d >> 8);
+            psi_codes[i] = psi_code(stats.scatter[i], d >> 8);
         }
         let mut codes = [0u8; P];
         let (mu_part, psi_part) = codes.split_at_mut(section_len(D, MU_BITS));
         pack(&mu_codes, MU_BITS, mu_part);
         pack(&psi_codes, PSI_BITS, psi_part);
         Self {
-            lambda: stats.lambda,
+            count: stats.count,
             mu_scale,
             psi_base,
             codes,
@@ -239,18 +243,15 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     }
 
     /// Decode to f32.
-    pub fn decode(&self) -> VoxelStats<D> {
-        let mut out = VoxelStats {
-            lambda: self.lambda,
-            ..VoxelStats::EMPTY
-        };
+    pub fn decode(&self) -> ObsStats<D> {
+        let mut out = ObsStats::EMPTY;
         self.decode_into(&mut out);
         out
     }
 
-    /// Decode into an existing f32 posterior (no 516-byte temporary on the device stack).
-    pub fn decode_into(&self, out: &mut VoxelStats<D>) {
-        out.lambda = self.lambda;
+    /// Decode into existing f32 statistics (no 516-byte temporary on the device stack).
+    pub fn decode_into(&self, out: &mut ObsStats<D>) {
+        out.count = self.count;
         let scale = self.mu_scale.to_f32();
         let (mu_part, psi_part) = self.codes.split_at(section_len(D, MU_BITS));
         let mut codes = [0u8; D];
@@ -262,7 +263,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
         unpack(psi_part, PSI_BITS, &mut codes);
         let base = u32::from(self.psi_base);
-        for (p, &c) in out.psi.iter_mut().zip(&codes) {
+        for (p, &c) in out.scatter.iter_mut().zip(&codes) {
             *p = f32::from_bits((u32::from(c) + base) << PSI_SHIFT);
         }
     }
@@ -278,17 +279,17 @@ mod tests {
     #[test]
     fn round_trip_error_is_within_one_step() {
         let mut d = Dither::new(1);
-        let mut s = VoxelStats::<D> {
-            lambda: 12.5,
-            ..VoxelStats::EMPTY
+        let mut s = ObsStats::<D> {
+            count: 12.5,
+            ..ObsStats::EMPTY
         };
         for i in 0..D {
             s.mean[i] = ((i as f32) * 0.37).sin() * 0.8;
-            s.psi[i] = 0.5 + (i as f32) * 0.3;
+            s.scatter[i] = 0.5 + (i as f32) * 0.3;
         }
         let q = QuantVoxel::<D, P>::encode(&s, &mut d);
         let back = q.decode();
-        assert_eq!(back.lambda, s.lambda);
+        assert_eq!(back.count, s.count);
         let step = q.mu_scale.to_f32();
         for i in 0..D {
             assert!(
@@ -296,7 +297,7 @@ mod tests {
                 "mean {i}"
             );
             // Stochastic rounding lands on one of the two neighbouring codes: within one step (≤ 25 %).
-            let rel = back.psi[i] / s.psi[i];
+            let rel = back.scatter[i] / s.scatter[i];
             assert!(rel > 0.8 && rel < 1.25, "psi {i}: {rel}");
         }
     }
@@ -305,20 +306,20 @@ mod tests {
     fn stochastic_rounding_is_unbiased() {
         // A value a third of a step above a code: round-to-nearest would always lose it.
         let mut d = Dither::new(7);
-        let mut s = VoxelStats::<D> {
-            lambda: 1.0,
+        let mut s = ObsStats::<D> {
+            count: 1.0,
             mean: [0.0; D],
-            psi: [1.0; D],
+            scatter: [1.0; D],
         };
         s.mean[0] = 1.0; // sets the scale: step = 1/q_max
         s.mean[1] = (10.0 + 1.0 / 3.0) / MU_QMAX as f32;
-        s.psi[1] = 1.01; // 1 % above a code of Ψ = 1
+        s.scatter[1] = 1.01; // 1 % above a code of Ψ = 1
         let (mut sum_mu, mut sum_psi) = (0.0f64, 0.0f64);
         let n = 20_000;
         for _ in 0..n {
             let b = QuantVoxel::<D, P>::encode(&s, &mut d).decode();
             sum_mu += b.mean[1] as f64;
-            sum_psi += b.psi[1] as f64;
+            sum_psi += b.scatter[1] as f64;
         }
         assert!((sum_mu / n as f64 - s.mean[1] as f64).abs() < 2e-4);
         assert!(
@@ -332,10 +333,10 @@ mod tests {
     #[test]
     fn repeated_requantization_does_not_drift() {
         let mut d = Dither::new(5);
-        let mut truth = VoxelStats::<D> {
-            lambda: 1.0,
+        let mut truth = ObsStats::<D> {
+            count: 1.0,
             mean: [0.0; D],
-            psi: [1.0; D],
+            scatter: [1.0; D],
         };
         for i in 0..D {
             truth.mean[i] = ((i as f32) * 0.91).cos() * 0.2;
@@ -346,8 +347,13 @@ mod tests {
         });
         for _ in 0..2000 {
             let mut stored = code.decode();
-            stored.absorb_point(0.05, &y);
-            truth.absorb_point(0.05, &y);
+            let point = ObsStats {
+                count: 0.05,
+                mean: y,
+                scatter: [0.0; D],
+            };
+            stored.merge(&point);
+            truth.merge(&point);
             code = code.reencode(&stored, &mut d);
         }
         let back = code.decode();
@@ -366,17 +372,17 @@ mod tests {
     #[test]
     fn empty_and_wide_ranges() {
         let mut d = Dither::new(3);
-        let z = QuantVoxel::<D, P>::encode(&VoxelStats::EMPTY, &mut d).decode();
-        assert!(z.mean.iter().all(|&m| m == 0.0) && z.lambda == 0.0);
+        let z = QuantVoxel::<D, P>::encode(&ObsStats::EMPTY, &mut d).decode();
+        assert!(z.mean.iter().all(|&m| m == 0.0) && z.count == 0.0);
         // Ψ spanning 2^20: the largest values keep their precision, the smallest clamp up, never NaN.
-        let mut s = VoxelStats::<D> {
-            lambda: 3.0,
+        let mut s = ObsStats::<D> {
+            count: 3.0,
             mean: [0.0; D],
-            psi: [1.0; D],
+            scatter: [1.0; D],
         };
-        s.psi[0] = 1e6;
+        s.scatter[0] = 1e6;
         let b = QuantVoxel::<D, P>::encode(&s, &mut d).decode();
-        assert!((b.psi[0] / 1e6 - 1.0).abs() < 0.2);
-        assert!(b.psi.iter().all(|p| p.is_finite() && *p >= 1.0));
+        assert!((b.scatter[0] / 1e6 - 1.0).abs() < 0.2);
+        assert!(b.scatter.iter().all(|p| p.is_finite() && *p >= 1.0));
     }
 }

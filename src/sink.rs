@@ -6,15 +6,15 @@
 //! reports it, rather than dropping data.
 
 use crate::key::VoxelKey;
-use crate::stats::VoxelStats;
+use crate::obs::ObsStats;
 
 /// One voxel leaving the local map.
 #[derive(Clone, Copy, Debug)]
 pub struct Evicted<'a, const D: usize> {
     /// Which voxel.
     pub key: VoxelKey,
-    /// Its posterior over the observations made while it was resident (prior included).
-    pub stats: &'a VoxelStats<D>,
+    /// What was observed in it while it was resident: point count, mean and scatter (no prior).
+    pub obs: &'a ObsStats<D>,
     /// Residency number: increases every time any voxel enters the map, so the same key evicted twice
     /// (observed, forgotten, observed again) carries two different numbers. Observations of different
     /// residencies are disjoint and must be merged, not replaced.

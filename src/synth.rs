@@ -809,7 +809,7 @@ mod tests {
             map.configure(MapConfig::default(), 1.5).unwrap();
             let mut out: Vec<(i32, u32, f32)> = Vec::new();
             let mut sink = |e: Evicted<'_, 16>| {
-                out.push((e.key.x, e.residency, e.stats.lambda));
+                out.push((e.key.x, e.residency, e.obs.count));
                 Ok(())
             };
             let mut reports = Vec::new();

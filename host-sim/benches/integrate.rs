@@ -65,27 +65,6 @@ fn bench(c: &mut Criterion) {
                 BatchSize::PerIteration,
             )
         });
-        // A host-sized batch scratch (256 source-voxel groups, 136 KiB instead of the device's 32, 17 KiB):
-        // shared neighbours are re-encoded once per flush, so fewer flushes mean fewer re-encodes.
-        let fresh_g256 = || {
-            let mut m = Box::new(LocalMap::<D, CAP, P, 256>::EMPTY);
-            m.configure(config, window).unwrap();
-            m.move_window(pts[0], &mut discard);
-            m
-        };
-        group.bench_function(format!("local_map_morton_g256/{name}"), |b| {
-            b.iter_batched_ref(
-                fresh_g256,
-                |m| {
-                    for i in morton_order(&pts, config.voxel_size()) {
-                        let i = i as usize;
-                        let _ = m.add_point(pts[i], &feats[i], &mut discard);
-                    }
-                    m.end_batch(&mut discard);
-                },
-                BatchSize::PerIteration,
-            )
-        });
         // The host's fast path: per-voxel observation statistics (posteriors gathered when asked).
         group.bench_function(format!("obs_map/{name}"), |b| {
             b.iter_batched_ref(

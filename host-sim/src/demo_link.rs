@@ -11,7 +11,7 @@ use crate::eval::methods::VoxelSink;
 use crate::link::{split_frames, ByteLog, Faults, FaultyLink};
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
 use std::sync::{Arc, Mutex};
 
 const D: usize = 64;
@@ -29,7 +29,7 @@ pub struct DemoLink {
     /// Voxels handed to the encoder and the kernel mass they carry.
     pub sent_voxels: u64,
     /// Σλ of the voxels handed to the encoder.
-    pub sent_mass: f64,
+    pub sent_points: f64,
     /// Bytes put on the wire.
     pub bytes: u64,
 }
@@ -50,7 +50,7 @@ impl DemoLink {
             link: FaultyLink::new(Faults::everything(ber), seed),
             base,
             sent_voxels: 0,
-            sent_mass: 0.0,
+            sent_points: 0.0,
             bytes: 0,
         })))
     }
@@ -86,12 +86,12 @@ impl DemoLink {
         let (voxels, mass) = self
             .base
             .map()
-            .map_or((0, 0.0), |m| (m.len(), m.kernel_mass()));
+            .map_or((0, 0.0), |m| (m.len(), m.observed_points()));
         format!(
             "streamed {} evicted voxels in {} frames ({} B, {:.1} B/voxel) over a faulty link \
              (byte errors, dropped/truncated/duplicated frames): {} frames arrived intact; the base station \
              applied {}, refused {} damaged runs of bytes, counted {} frames lost; its global map holds \
-             {} voxels with {:.1} % of the kernel mass sent.",
+             {} voxels with {:.1} % of the points sent.",
             self.sent_voxels,
             l.frames,
             self.bytes,
@@ -101,7 +101,7 @@ impl DemoLink {
             s.decoder.refused(),
             s.lost,
             voxels,
-            100.0 * mass / self.sent_mass.max(f64::MIN_POSITIVE),
+            100.0 * mass / self.sent_points.max(f64::MIN_POSITIVE),
         )
     }
 }
@@ -110,17 +110,17 @@ impl DemoLink {
 pub struct DemoLinkSink(pub Arc<Mutex<DemoLink>>);
 
 impl VoxelSink for DemoLinkSink {
-    fn voxel(&mut self, key: VoxelKey, stats: &VoxelStats<D>, residency: u32) {
+    fn voxel(&mut self, key: VoxelKey, obs: &ObsStats<D>, residency: u32) {
         let Ok(mut link) = self.0.lock() else { return };
         for _ in 0..1000 {
             let v = Evicted {
                 key,
-                stats,
+                obs,
                 residency,
             };
             if link.encoder.evict(v).is_ok() {
                 link.sent_voxels += 1;
-                link.sent_mass += f64::from(stats.lambda);
+                link.sent_points += f64::from(obs.count);
                 return;
             }
             link.tick();

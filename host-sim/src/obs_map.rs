@@ -188,6 +188,12 @@ impl<const D: usize> ObsMap<D> {
             .posterior(&self.prior)
     }
 
+    /// The posterior of a voxel within the kernel's reach of an observation; `None` beyond it.
+    pub fn posterior_in_reach(&self, key: VoxelKey) -> Option<VoxelStats<D>> {
+        let obs = latentbki::gather(&self.lut, self, key).ok()?;
+        (!obs.is_empty()).then(|| obs.posterior(&self.prior))
+    }
+
     /// Bitmask, per block, of every voxel within the kernel's reach of an observed voxel.
     fn reach_masks(&self) -> Vec<(BlockKey, [u64; WORDS])> {
         let mut index: FxHashMap<BlockKey, u32> = FxHashMap::default();
@@ -330,12 +336,12 @@ impl<const D: usize> ObsMap<D> {
 }
 
 impl<const D: usize> ObsLookup<D> for ObsMap<D> {
-    fn observed(&self, key: VoxelKey) -> Option<&ObsStats<D>> {
+    fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         let (bk, local) = block_of(key);
         let b = *self.index.get(&bk)?;
         match self.blocks[b as usize].1[local] {
             0 => None,
-            s => self.stats.get(s as usize - 1),
+            s => self.stats.get(s as usize - 1).copied(),
         }
     }
 }

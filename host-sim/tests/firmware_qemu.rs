@@ -12,12 +12,12 @@ use latentbki::frame::{FrameDecoder, FrameEncoder};
 use latentbki::key::{to_map_frame, VoxelKey};
 use latentbki::local_map::LocalMap;
 use latentbki::quant::packed_len;
-use latentbki::stats::VoxelStats;
 use latentbki::synth::{
     self, CategoryVectors, Chunk, Scenario, CATEGORIES, SELF_TEST, SELF_TEST_CAPACITY,
     SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,
 };
 use latentbki::wire::{parse_body, Message, SessionConfig};
+use latentbki::ObsStats;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -144,7 +144,7 @@ fn ground_truth(scenario: &Scenario) -> BTreeMap<VoxelKey, [u32; CATEGORIES]> {
 
 /// A global map per session configuration, from a byte stream: every final summary of every session
 /// merged (residencies are disjoint observations). Returns (maps by configuration id, frames, finals).
-type Global = BTreeMap<u32, (SessionConfig, BTreeMap<VoxelKey, VoxelStats<D>>)>;
+type Global = BTreeMap<u32, (SessionConfig, BTreeMap<VoxelKey, ObsStats<D>>)>;
 
 fn decode(bytes: &[u8]) -> (Global, u32, u32) {
     let mut decoder = Box::new(FrameDecoder::<4096>::new());
@@ -168,8 +168,6 @@ fn decode(bytes: &[u8]) -> (Global, u32, u32) {
                     Message::Stats(_) => {}
                     Message::Voxels(batch) => {
                         let config = configs[&header.config_id];
-                        let prior =
-                            VoxelStats::<D>::from_prior(&config.map_config().unwrap().prior());
                         let (_, map) = maps
                             .entry(header.config_id)
                             .or_insert((config, BTreeMap::new()));
@@ -178,8 +176,8 @@ fn decode(bytes: &[u8]) -> (Global, u32, u32) {
                             assert!(s.is_final, "the self-test streams evicted voxels only");
                             finals += 1;
                             map.entry(s.key)
-                                .and_modify(|v| v.merge(&s.stats, &prior))
-                                .or_insert(s.stats);
+                                .and_modify(|v| v.merge(&s.obs))
+                                .or_insert(s.obs);
                         }
                     }
                 }
@@ -262,7 +260,7 @@ fn firmware_in_qemu_streams_the_map_the_host_twin_computes() {
     assert_eq!(finals, sent);
     assert!(frames > 100);
 
-    // Semantics: at f = 1 (no spreading) a voxel's mean decodes to the category most of its points had.
+    // Semantics: a voxel's observed mean decodes to the category most of its points had.
     let s = 1;
     let id = SELF_TEST[s].session_config(D).unwrap().id();
     let (_, global) = &fw_maps[&id];

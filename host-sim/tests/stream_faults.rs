@@ -9,7 +9,7 @@ use host_sim::base_station::BaseStation;
 use host_sim::link::{split_frames, ByteLog, Faults, FaultyLink, SplitMix};
 use latentbki::frame::{live, EncoderSettings};
 use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec, CRC32, PROTOCOL_VERSION};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
 use std::collections::{BTreeMap, BTreeSet};
 
 const D: usize = 64;
@@ -18,11 +18,11 @@ fn config() -> SessionConfig {
     SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, 0x1234_5678)
 }
 
-fn stats(rng: &mut SplitMix) -> VoxelStats<D> {
-    VoxelStats {
-        lambda: 0.5 + 20.0 * rng.unit() as f32,
+fn stats(rng: &mut SplitMix) -> ObsStats<D> {
+    ObsStats {
+        count: 1.0 + rng.below(20) as f32,
         mean: core::array::from_fn(|_| rng.unit() as f32 - 0.5),
-        psi: core::array::from_fn(|_| 1.0 + 3.0 * rng.unit() as f32),
+        scatter: core::array::from_fn(|_| 1.0 + 3.0 * rng.unit() as f32),
     }
 }
 
@@ -51,7 +51,7 @@ fn stream(
             if enc
                 .evict(Evicted {
                     key,
-                    stats: &s,
+                    obs: &s,
                     residency,
                 })
                 .is_ok()
@@ -226,29 +226,36 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
     v2[0] = PROTOCOL_VERSION + 1;
     base.receive(&frame_of(&v2));
     assert_eq!(base.stats().rejected.version, 1);
-    // A summary with a non-finite λ in a frame with a valid CRC: the whole frame is refused.
+    // A summary with a point count of 0 in a frame with a valid CRC: the whole frame is refused.
     let voxel_body = good
         .values()
         .find(|b| matches!(parse_body(b), Ok((_, Message::Voxels(_)))))
         .unwrap();
-    let (h, Message::Voxels(batch)) = parse_body(voxel_body).unwrap() else {
+    let (h, Message::Voxels(_)) = parse_body(voxel_body).unwrap() else {
         unreachable!()
     };
-    let mut summaries = batch.summaries.to_vec();
-    let first = batch
-        .iter::<D>(SummaryCodec::DEFAULT)
-        .next()
-        .unwrap()
-        .unwrap();
-    let lambda_at = summaries
-        .windows(4)
-        .position(|w| w == first.stats.lambda.to_le_bytes())
-        .unwrap();
-    summaries[lambda_at..lambda_at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    let mut codes = [0u8; 64];
+    let c = latentbki::wire::encode_codes(
+        SummaryCodec::DEFAULT,
+        &stats(&mut SplitMix::new(3)),
+        &mut codes,
+    )
+    .unwrap();
+    let mut summaries = [0u8; 128];
+    let len = latentbki::wire::encode_summary(
+        &mut latentbki::wire::DeltaBase::default(),
+        VoxelKey::new(1, 2, 3),
+        7,
+        true,
+        0,
+        &codes[..c],
+        &mut summaries,
+    )
+    .unwrap();
     let mut out = [0u8; 1024];
     let msg = Message::Voxels(latentbki::wire::VoxelBatch {
-        count: batch.count,
-        summaries: &summaries,
+        count: 1,
+        summaries: &summaries[..len],
     });
     let n = latentbki::wire::encode_body(&h, &msg, &mut out).unwrap();
     base.receive(&frame_of(&out[..n]));

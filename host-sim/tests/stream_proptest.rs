@@ -8,18 +8,22 @@ use latentbki::wire::{
     decode_summary, encode_codes, encode_summary, mean_error_bound, parse_body, DeltaBase, Message,
     SessionConfig, SummaryCodec,
 };
-use latentbki::{EvictionSink, FrameEncoder, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
 use proptest::prelude::*;
 
 const D: usize = 16;
 
-fn voxel() -> impl Strategy<Value = VoxelStats<D>> {
+fn voxel() -> impl Strategy<Value = ObsStats<D>> {
     (
-        1e-3f32..1e5,
+        1u32..=(1 << 24),
         prop::array::uniform16(-10.0f32..10.0),
         prop::array::uniform16(1e-3f32..1e4),
     )
-        .prop_map(|(lambda, mean, psi)| VoxelStats { lambda, mean, psi })
+        .prop_map(|(n, mean, scatter)| ObsStats {
+            count: n as f32,
+            mean,
+            scatter,
+        })
 }
 
 fn key() -> impl Strategy<Value = VoxelKey> {
@@ -45,24 +49,25 @@ proptest! {
             let mut codes = [0u8; 64];
             let n = encode_codes(codec, s, &mut codes).unwrap();
             scales.push(codes[0]);
-            at += encode_summary(&mut base, *k, *r, *f, s.lambda, &codes[..n], &mut buf[at..]).unwrap();
+            at += encode_summary(&mut base, *k, *r, *f, s.count as u32, &codes[..n], &mut buf[at..]).unwrap();
         }
         let mut base = DeltaBase::default();
         let mut pos = 0;
         for (i, (k, r, f, s)) in items.iter().enumerate() {
             let got = decode_summary::<D>(codec, &mut base, &buf[..at], &mut pos).unwrap();
             prop_assert_eq!((got.key, got.residency, got.is_final), (*k, *r, *f));
-            prop_assert_eq!(got.stats.lambda.to_bits(), s.lambda.to_bits());
-            let err = got.stats.mean.iter().zip(&s.mean).map(|(a, b)| (a - b) * (a - b)).sum::<f32>().sqrt();
+            prop_assert_eq!(got.obs.count.to_bits(), s.count.to_bits());
+            let err = got.obs.mean.iter().zip(&s.mean).map(|(a, b)| (a - b) * (a - b)).sum::<f32>().sqrt();
             prop_assert!(err <= mean_error_bound(codec, D, scales[i]) * 1.001 + 1e-6, "mean error {}", err);
-            let max = s.psi.iter().fold(0.0f32, |a, &b| a.max(b));
-            prop_assert!(got.psi_max >= max * 0.9999 && got.psi_max <= max * 1.0906 + 1e-9);
-            // Block sums of Ψ within half an octave step (2^±¼), for every block.
+            let max = s.scatter.iter().fold(0.0f32, |a, &b| a.max(b));
+            let got_max = got.obs.scatter.iter().fold(0.0f32, |a, &b| a.max(b));
+            prop_assert!(got_max <= max * 1.0906 + 1e-9);
+            // Block sums of S within half an octave step (2^±¼), for every block.
             let blocks = usize::from(codec.psi_blocks);
             for b in 0..blocks {
                 let r = (b * D / blocks)..((b + 1) * D / blocks);
-                let exact: f32 = s.psi[r.clone()].iter().sum();
-                let dec: f32 = got.stats.psi[r].iter().sum();
+                let exact: f32 = s.scatter[r.clone()].iter().sum();
+                let dec: f32 = got.obs.scatter[r].iter().sum();
                 // Block means below Ψ_max · 2^-7.5 saturate at the smallest code.
                 if exact / (r_len(b, blocks) as f32) >= max * 0.007 {
                     prop_assert!(dec / exact < 1.19 && exact / dec < 1.19, "block {}: {} vs {}", b, dec, exact);
@@ -87,7 +92,7 @@ proptest! {
                 let r = enc.tick(&mut uart, budget, core::iter::empty()).unwrap();
                 prop_assert!(r.bytes <= budget);
             }
-            sent.push((*k, i as u32, s.lambda));
+            sent.push((*k, i as u32, s.count));
         }
         while enc.queued() > 0 {
             let r = enc.tick(&mut uart, budget, core::iter::empty()).unwrap();
@@ -103,7 +108,7 @@ proptest! {
             if let Ok((_, Message::Voxels(b))) = parse_body(&j.body) {
                 for s in b.iter::<D>(config.codec) {
                     let s = s.unwrap();
-                    got.push((s.key, s.residency, s.stats.lambda));
+                    got.push((s.key, s.residency, s.obs.count));
                 }
             }
         }

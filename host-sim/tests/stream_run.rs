@@ -120,11 +120,10 @@ fn whole_run_with_exact_codes_equals_the_reference_map() {
     );
     assert!(worst_lambda < 1e-4, "Σλ not conserved: {worst_lambda}");
     assert!(agree >= 0.99, "{agree}");
-    // The robot's own voxel codes (src/quant.rs, re-encoded at every update) dominate μ's error against the
-    // reference; only a gross failure is caught here — the exact-merge check is the one above.
-    assert!(rms_mu < 0.5, "{rms_mu}");
-    let mass = map.kernel_mass();
-    assert!((mass - r.reference.kernel_mass()).abs() < 1e-4 * mass);
+    // The robot's own voxel codes (src/quant.rs) dominate μ's error against the reference.
+    assert!(rms_mu < 0.05, "{rms_mu}");
+    // Every point is counted once.
+    assert_eq!(map.observed_points(), r.reference.points() as f64);
 }
 
 #[test]
@@ -137,28 +136,19 @@ fn default_codec_meets_the_size_and_agreement_goals() {
     let (_, agree_w, _, mu_w) = compare(&r.world, map, &evicted_truth(&r.world, &r.robots));
     let (count, bytes) = summary_bytes(&r.base);
     let per_summary = bytes as f64 / count as f64;
-    // Agreement with the robot's own map: every evicted voxel as the robot held it vs as decoded.
-    let evicted = &r.robots[0].evicted;
-    let mut agree_own = 0;
-    for (_, _, st) in evicted {
-        let mut codes = [0u8; 128];
-        encode_codes(codec, st, &mut codes).unwrap();
-        let (dec, _, _) = decode_codes::<D>(codec, st.lambda, &codes).unwrap();
-        agree_own +=
-            usize::from(label(&r.world.vocab, &dec.mean) == label(&r.world.vocab, &st.mean));
-    }
-    let agree_own = agree_own as f64 / evicted.len() as f64;
+    let evicted = r.robots[0].evicted.len();
+    // `agree_w`: the base station's posteriors vs the robot's own map (its evicted statistics, gathered in
+    // f32): only the wire's quantization separates them.
     println!(
-        "default codec (b = {}, B = {}): {per_summary:.2} B/summary over {count} summaries; argmax agreement with the robot's own map {agree_own:.4} ({} voxels), with the f32 reference {agree_ref:.4} ({n} voxels); global map vs evictions merged in f32: agreement {agree_w:.4}, RMS ‖Δμ‖/‖μ‖ {mu_w:.4}; vs reference: worst Δλ/λ {worst_lambda:.2e}, RMS ‖Δμ‖/‖μ‖ {rms_mu:.4}",
+        "default codec (b = {}, B = {}): {per_summary:.2} B/summary over {count} summaries ({evicted} evicted voxels); base station vs the robot's own map: argmax agreement {agree_w:.4}, RMS ‖Δμ‖/‖μ‖ {mu_w:.4} ({n} voxels answered); vs the f32 reference: agreement {agree_ref:.4}, worst Δλ/λ {worst_lambda:.2e}, RMS ‖Δμ‖/‖μ‖ {rms_mu:.4}",
         codec.mean_bits,
         codec.psi_blocks,
-        evicted.len()
     );
     assert!(per_summary <= 40.0, "{per_summary} bytes per summary");
-    assert!(agree_own >= 0.98, "{agree_own}");
+    assert!(agree_w >= 0.99, "{agree_w}");
     assert!(agree_ref >= 0.97, "{agree_ref}");
     assert!(worst_lambda < 1e-4);
-    assert!(agree_w >= 0.98 && mu_w < 0.25, "{agree_w} {mu_w}");
+    assert!(mu_w < 0.1, "{mu_w}");
     let _ = rms_mu;
 }
 
@@ -193,7 +183,7 @@ fn two_robots_merge_into_the_all_points_map() {
         "merge is not exact"
     );
     assert!(worst_lambda < 1e-4);
-    assert!(rms_mu < 0.5);
+    assert!(rms_mu < 0.05, "{rms_mu}");
     assert!(agree >= 0.99);
 }
 
@@ -207,8 +197,10 @@ fn codec_trade_off_table() {
     );
     let evicted = &r.robots[0].evicted;
     let (count, bytes) = summary_bytes(&r.base);
-    let head = bytes as f64 / count as f64 - (4 + SummaryCodec::DEFAULT.code_len(D)) as f64;
-    println!("mean bits | psi blocks | bytes/summary | argmax agreement with the robot's map");
+    let head = bytes as f64 / count as f64 - SummaryCodec::DEFAULT.code_len(D) as f64;
+    println!(
+        "mean bits | psi blocks | bytes/summary | argmax agreement of the voxel's observed mean"
+    );
     let mut previous = 0.0;
     for bits in 2..=6u8 {
         let codec = SummaryCodec {
@@ -219,14 +211,14 @@ fn codec_trade_off_table() {
         for (_, _, st) in evicted {
             let mut codes = [0u8; 128];
             encode_codes(codec, st, &mut codes).unwrap();
-            let (dec, _, _) = decode_codes::<D>(codec, st.lambda, &codes).unwrap();
+            let dec = decode_codes::<D>(codec, st.count, &codes).unwrap();
             agree +=
                 usize::from(label(&r.world.vocab, &dec.mean) == label(&r.world.vocab, &st.mean));
         }
         let agree = agree as f64 / evicted.len() as f64;
         println!(
             "{bits} | 8 | {:.1} | {agree:.4}",
-            head + (4 + codec.code_len(D)) as f64
+            head + codec.code_len(D) as f64
         );
         assert!(agree + 0.005 >= previous, "more bits should not agree less");
         previous = agree;

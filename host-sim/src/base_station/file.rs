@@ -1,7 +1,7 @@
 //! The global map on disk: a versioned, checksummed, exact file.
 //!
 //! The base station runs for days and must survive restarts, so the map is saved whole — settled
-//! posteriors, closed contribution ids (so copies arriving after a restart are still ignored) and live
+//! observation statistics, closed contribution ids (so copies arriving after a restart are still ignored) and live
 //! contributions — with every f32 bit-exact: save → load gives an identical map and identical query
 //! results. A truncated, corrupted or foreign file is refused with an error that says which.
 //!
@@ -14,21 +14,21 @@
 //! voxels       u64
 //! per voxel (sorted by key):
 //!   key        3 × i32
-//!   settled    λ f32, μ D × f32, Ψ D × f32
+//!   settled    n f32, m D × f32, S D × f32
 //!   closed     u32 count, then (robot u16, session u32, residency u32) each
-//!   live       u32 count, then (robot u16, session u32, residency u32, seq u32, λ, μ, Ψ) each
+//!   live       u32 count, then (robot u16, session u32, residency u32, seq u32, n, m, S) each
 //! crc32        u32      CRC-32 (ISO-HDLC) of every byte before it
 //! ```
 
 use super::global_map::{ContributionId, GlobalMap, GlobalVoxel, LiveContribution};
 use latentbki::wire::{SessionConfig, CRC32};
-use latentbki::{VoxelKey, VoxelStats};
+use latentbki::{ObsStats, VoxelKey};
 use std::path::Path;
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"LBKIGMAP";
 /// Current file format version.
-pub const FILE_VERSION: u32 = 1;
+pub const FILE_VERSION: u32 = 2;
 
 /// Why a map file could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -107,20 +107,22 @@ impl<'a> Reader<'a> {
     fn f32(&mut self) -> Result<f32, LoadError> {
         Ok(f32::from_le_bytes(self.arr()?))
     }
-    fn stats<const D: usize>(&mut self) -> Result<VoxelStats<D>, LoadError> {
-        let lambda = self.f32()?;
-        let mut s = VoxelStats {
-            lambda,
-            ..VoxelStats::EMPTY
+    fn stats<const D: usize>(&mut self) -> Result<ObsStats<D>, LoadError> {
+        let count = self.f32()?;
+        let mut s = ObsStats {
+            count,
+            ..ObsStats::EMPTY
         };
         for m in s.mean.iter_mut() {
             *m = self.f32()?;
         }
-        for p in s.psi.iter_mut() {
+        for p in s.scatter.iter_mut() {
             *p = self.f32()?;
         }
-        if !s.is_finite() {
-            return Err(LoadError::Invalid("a voxel posterior is not finite".into()));
+        if !s.is_valid() {
+            return Err(LoadError::Invalid(
+                "a voxel's statistics are not finite or negative".into(),
+            ));
         }
         Ok(s)
     }
@@ -146,9 +148,9 @@ impl<'a> Reader<'a> {
     }
 }
 
-fn put_stats<const D: usize>(out: &mut Vec<u8>, s: &VoxelStats<D>) {
-    out.extend_from_slice(&s.lambda.to_le_bytes());
-    for v in s.mean.iter().chain(&s.psi) {
+fn put_stats<const D: usize>(out: &mut Vec<u8>, s: &ObsStats<D>) {
+    out.extend_from_slice(&s.count.to_le_bytes());
+    for v in s.mean.iter().chain(&s.scatter) {
         out.extend_from_slice(&v.to_le_bytes());
     }
 }
@@ -190,7 +192,7 @@ impl<const D: usize> GlobalMap<D> {
             for c in &live {
                 put_id(&mut out, &c.id);
                 out.extend_from_slice(&c.seq.to_le_bytes());
-                put_stats(&mut out, &c.stats);
+                put_stats(&mut out, &c.obs);
             }
         }
         let crc = CRC32.checksum(&out);
@@ -286,7 +288,7 @@ impl<const D: usize> GlobalMap<D> {
                 live.push(LiveContribution {
                     id,
                     seq,
-                    stats: r.stats()?,
+                    obs: r.stats()?,
                 });
             }
             map.insert_raw(

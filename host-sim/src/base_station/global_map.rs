@@ -1,15 +1,19 @@
 //! The base station's global map: every robot's summaries merged exactly, nothing counted twice.
 //!
 //! A voxel's observations arrive as *contributions*, one per `(robot, session, residency)`: each is the
-//! posterior of the observations made while that voxel was resident in that robot's map, so different
-//! contributions are disjoint and are merged (`VoxelStats::merge` against the shared prior — the core's
-//! operation, not a second copy). Within one contribution, live updates replace each other (newest frame
-//! sequence number wins) and the final (evicted) summary closes it; its id is remembered, so a repeated or
-//! late copy is ignored instead of merged again. Settled contributions are folded into one posterior per
-//! voxel; only live ones are kept apart until they close.
+//! observation statistics (n, m, S) of the points that fell in that voxel while it was resident in that
+//! robot's map, so different contributions are disjoint and are merged exactly (`ObsStats::merge` — the
+//! core's operation, not a second copy). Within one contribution, live updates replace each other (newest
+//! frame sequence number wins) and the final (evicted) summary closes it; its id is remembered, so a
+//! repeated or late copy is ignored instead of merged again. Settled contributions are folded into one
+//! set of statistics per voxel; only live ones are kept apart until they close.
+//!
+//! Posteriors are gathered through the kernel when asked ([`latentbki::obs`]): for one voxel by the core's
+//! `gather`, for every voxel in reach through the host's [`ObsMap`].
 
+use crate::ObsMap;
 use latentbki::wire::{SessionConfig, Summary};
-use latentbki::{Codebook, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{Codebook, KernelLut, MapConfig, ObsLookup, ObsStats, Prior, VoxelKey, VoxelStats};
 use std::collections::HashMap;
 
 /// Largest vocabulary the base station decodes against.
@@ -33,15 +37,15 @@ pub struct LiveContribution<const D: usize> {
     pub id: ContributionId,
     /// Frame sequence number it came in.
     pub seq: u32,
-    /// The robot's posterior for it.
-    pub stats: VoxelStats<D>,
+    /// What the robot observed in the voxel during that residency so far.
+    pub obs: ObsStats<D>,
 }
 
 /// One voxel of the global map.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GlobalVoxel<const D: usize> {
-    /// Prior ⊕ every closed contribution.
-    pub settled: VoxelStats<D>,
+    /// Every closed contribution, merged.
+    pub settled: ObsStats<D>,
     /// Ids of the closed contributions (their copies are ignored).
     pub closed: Vec<ContributionId>,
     /// Open contributions, newest copy of each.
@@ -71,12 +75,19 @@ pub struct Uncertainty {
 }
 
 /// The global sparse map.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct GlobalMap<const D: usize> {
     config: SessionConfig,
     map_config: MapConfig,
-    prior: VoxelStats<D>,
+    lut: KernelLut,
     voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
+}
+
+impl<const D: usize> PartialEq for GlobalMap<D> {
+    fn eq(&self, other: &Self) -> bool {
+        // The kernel table follows from the configuration.
+        self.config == other.config && self.voxels == other.voxels
+    }
 }
 
 /// `a` is newer than `b` in a wrapping u32 sequence.
@@ -92,10 +103,15 @@ impl<const D: usize> GlobalMap<D> {
         let map_config = config
             .map_config()
             .map_err(|_| latentbki::wire::WireError::BadConfig)?;
+        let lut = KernelLut::new(&map_config).map_err(|_| latentbki::wire::WireError::BadConfig)?;
+        if !lut.is_voxel_offset() {
+            // Per-voxel statistics cannot express the sub-voxel kernel.
+            return Err(latentbki::wire::WireError::BadConfig);
+        }
         Ok(Self {
             config,
             map_config,
-            prior: VoxelStats::from_prior(&map_config.prior()),
+            lut,
             voxels: HashMap::new(),
         })
     }
@@ -109,10 +125,10 @@ impl<const D: usize> GlobalMap<D> {
         &self.map_config
     }
     /// The prior of an unobserved voxel.
-    pub fn prior(&self) -> &VoxelStats<D> {
-        &self.prior
+    pub fn prior(&self) -> Prior {
+        self.map_config.prior()
     }
-    /// Voxels held.
+    /// Voxels held (voxels a robot observed a point in).
     pub fn len(&self) -> usize {
         self.voxels.len()
     }
@@ -147,9 +163,8 @@ impl<const D: usize> GlobalMap<D> {
             session,
             residency: s.residency,
         };
-        let prior = self.prior;
         let v = self.voxels.entry(s.key).or_insert_with(|| GlobalVoxel {
-            settled: prior,
+            settled: ObsStats::EMPTY,
             closed: Vec::new(),
             live: Vec::new(),
         });
@@ -165,7 +180,7 @@ impl<const D: usize> GlobalMap<D> {
             if let Some(i) = at {
                 v.live.swap_remove(i);
             }
-            v.settled.merge(&s.stats, &prior);
+            v.settled.merge(&s.obs);
             v.closed.push(id);
             return Applied::Merged;
         }
@@ -175,7 +190,7 @@ impl<const D: usize> GlobalMap<D> {
                 v.live[i] = LiveContribution {
                     id,
                     seq,
-                    stats: s.stats,
+                    obs: s.obs,
                 };
                 Applied::Updated
             }
@@ -183,41 +198,55 @@ impl<const D: usize> GlobalMap<D> {
                 v.live.push(LiveContribution {
                     id,
                     seq,
-                    stats: s.stats,
+                    obs: s.obs,
                 });
                 Applied::Updated
             }
         }
     }
 
-    /// The merged posterior of a voxel: settled ⊕ every live contribution.
-    pub fn posterior(&self, key: &VoxelKey) -> Option<VoxelStats<D>> {
-        self.voxels.get(key).map(|v| self.merged(v))
+    /// What was observed in a voxel: settled ⊕ every live contribution.
+    pub fn observations(&self, key: &VoxelKey) -> Option<ObsStats<D>> {
+        self.voxels.get(key).map(Self::merged)
     }
 
-    fn merged(&self, v: &GlobalVoxel<D>) -> VoxelStats<D> {
+    fn merged(v: &GlobalVoxel<D>) -> ObsStats<D> {
         let mut p = v.settled;
         let mut live: Vec<_> = v.live.iter().collect();
         live.sort_by_key(|c| c.id); // order-independent result
         for c in live {
-            p.merge(&c.stats, &self.prior);
+            p.merge(&c.obs);
         }
         p
     }
 
-    /// Every voxel's merged posterior, sorted by key.
-    pub fn posteriors(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
-        self.sorted_keys()
-            .into_iter()
-            .map(|k| (k, self.merged(&self.voxels[&k])))
-            .collect()
+    /// The posterior of any voxel, gathered through the kernel from the observed voxels in reach (the
+    /// prior if none); `None` if nothing is in reach.
+    pub fn posterior(&self, key: &VoxelKey) -> Option<VoxelStats<D>> {
+        // The table is voxel-offset (checked in `new`).
+        let obs = latentbki::gather(&self.lut, self, *key).ok()?;
+        (!obs.is_empty()).then(|| obs.posterior(&self.prior()))
     }
 
-    /// Σ (λ − λ₀) over voxels: the kernel mass the map holds (conserved by merging).
-    pub fn kernel_mass(&self) -> f64 {
+    /// The merged observations in the host's block map, which gathers every posterior in one pass.
+    pub fn observation_map(&self) -> ObsMap<D> {
+        let mut map = ObsMap::new(self.map_config).expect("validated in GlobalMap::new");
+        for (k, v) in &self.voxels {
+            map.merge_observations(*k, &Self::merged(v));
+        }
+        map
+    }
+
+    /// Every voxel within the kernel's reach of an observation, with its posterior, sorted by key.
+    pub fn posteriors(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
+        self.observation_map().posteriors_sorted()
+    }
+
+    /// Σ n over voxels: the points the map holds (conserved by merging).
+    pub fn observed_points(&self) -> f64 {
         self.voxels
             .values()
-            .map(|v| f64::from(self.merged(v).lambda - self.prior.lambda))
+            .map(|v| f64::from(Self::merged(v).count))
             .sum()
     }
 
@@ -246,6 +275,12 @@ impl<const D: usize> GlobalMap<D> {
             e_optimality: p.e_optimality(),
             d_optimality: p.d_optimality(),
         })
+    }
+}
+
+impl<const D: usize> ObsLookup<D> for GlobalMap<D> {
+    fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
+        self.observations(&key)
     }
 }
 
@@ -283,18 +318,16 @@ mod tests {
         GlobalMap::new(c).unwrap()
     }
 
-    fn summary(residency: u32, is_final: bool, lambda: f32, m: f32) -> Summary<D> {
+    fn summary(residency: u32, is_final: bool, count: f32, m: f32) -> Summary<D> {
         Summary {
             key: VoxelKey::new(1, 2, 3),
             residency,
             is_final,
-            stats: VoxelStats {
-                lambda,
+            obs: ObsStats {
+                count,
                 mean: [m; D],
-                psi: [1.0 + lambda; D],
+                scatter: [1.0 + count; D],
             },
-            psi_max: 1.0 + lambda,
-            psi_geo: 1.0 + lambda,
         }
     }
 
@@ -315,7 +348,7 @@ mod tests {
             Applied::Stale
         );
         assert_eq!(
-            g.posterior(&k).unwrap().lambda,
+            g.observations(&k).unwrap().count,
             2.0,
             "live copies replace, never add"
         );
@@ -324,7 +357,7 @@ mod tests {
             Applied::Merged
         );
         assert_eq!(
-            g.posterior(&k).unwrap().lambda,
+            g.observations(&k).unwrap().count,
             3.0,
             "the final closes the live one"
         );
@@ -340,10 +373,18 @@ mod tests {
         g.apply(1, 1, 20, &summary(6, true, 1.0, 0.5));
         g.apply(1, 2, 0, &summary(5, true, 1.0, 0.5));
         g.apply(2, 1, 0, &summary(5, false, 2.0, 0.5));
-        let p = g.posterior(&k).unwrap();
-        assert_eq!(p.lambda, 3.0 + 1.0 + 1.0 + 2.0);
+        let o = g.observations(&k).unwrap();
+        assert_eq!(o.count, 3.0 + 1.0 + 1.0 + 2.0);
         let want = (3.0 * 0.2 + 4.0 * 0.5) / 7.0;
+        assert!((o.mean[0] - want).abs() < 1e-6);
+        assert!((g.observed_points() - 7.0).abs() < 1e-6);
+        // The posterior of the voxel itself (λ₀ = 0): its own 7 points plus nothing else in reach.
+        let p = g.posterior(&k).unwrap();
+        assert_eq!(p.lambda, 7.0);
         assert!((p.mean[0] - want).abs() < 1e-6);
-        assert!((g.kernel_mass() - 7.0).abs() < 1e-6);
+        // A neighbour sees it through the kernel; a far voxel sees nothing.
+        let n = g.posterior(&VoxelKey::new(2, 2, 3)).unwrap();
+        assert!((n.lambda - 7.0 * 0.7671).abs() < 1e-3);
+        assert!(g.posterior(&VoxelKey::new(9, 9, 9)).is_none());
     }
 }

@@ -246,7 +246,10 @@ fn build(
         Method::ConvBki(f) => {
             Box::new(CategoricalBki::new(with_filter(config, f)?, dec.decoder.clone()).map_err(e)?)
         }
-        Method::LatentBki(f) => Box::new(LatentBki::new(with_filter(config, f)?).map_err(e)?),
+        Method::LatentBki(f) => Box::new(
+            LatentBki::new(with_filter(config, f)?)
+                .map_err(|err| anyhow::anyhow!("{}: {err}", method.label()))?,
+        ),
         Method::OnDevice(f) => {
             Box::new(OnDevice::new(with_filter(config, f)?, setup.device_window, link).map_err(e)?)
         }

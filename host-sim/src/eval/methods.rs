@@ -8,16 +8,20 @@
 //!   by rounding; LatentBKI adds the uncertainty.
 //! - **ConvBKI-style categorical BKI**: Dirichlet counts per voxel over the network's argmax labels, spread
 //!   by the same sparse kernel table (the closed-dictionary semantic BKI of the paper's Table I).
-//! - **LatentBKI** on the f32 [`ReferenceMap`] (f = 1, 3, 5 …).
+//! - **LatentBKI** on the f32 [`ObsMap`] (f = 1, 3, 5 …): per-voxel observation statistics gathered
+//!   through the kernel, equal to the paper's batch update of [`crate::ReferenceMap`] to f32 rounding.
 //! - **LatentBKI on the device map**: the quantized, fixed-capacity [`LocalMap`]; voxels it evicts go
 //!   through a [`VoxelSink`] (the base-station link plugs in there) and are merged back for evaluation, as
 //!   the base station does.
 //!
-//! Every map method uses the core's keys, kernel table, locate/spread and update: no second copy of the math.
+//! Every map method uses the core's keys, kernel table, locate/spread, statistics and gather: no second copy
+//! of the math.
 
-use crate::ReferenceMap;
+use crate::ObsMap;
 use latentbki::local_map::LocalMap;
-use latentbki::{locate, spread, Codebook, KernelLut, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{
+    locate, spread, Codebook, KernelLut, MapConfig, ObsLookup, ObsStats, VoxelKey, VoxelStats,
+};
 use std::collections::HashMap;
 
 /// Feature dimension of every map here (the paper's 64).
@@ -207,20 +211,21 @@ impl Mapper for CategoricalBki {
     }
 }
 
-/// LatentBKI on the f32 reference map.
+/// LatentBKI on the host's f32 observation map (equal to the reference map's paper update to f32 rounding:
+/// `host-sim/tests/obs_map.rs`).
 pub struct LatentBki {
-    map: ReferenceMap<D>,
+    map: ObsMap<D>,
 }
 
 impl LatentBki {
     /// An empty map.
-    pub fn new(config: MapConfig) -> Result<Self, latentbki::ConfigError> {
+    pub fn new(config: MapConfig) -> Result<Self, crate::obs_map::ObsMapError> {
         Ok(Self {
-            map: ReferenceMap::new(config)?,
+            map: ObsMap::new(config)?,
         })
     }
     /// The map.
-    pub fn map(&self) -> &ReferenceMap<D> {
+    pub fn map(&self) -> &ObsMap<D> {
         &self.map
     }
 }
@@ -234,17 +239,13 @@ impl Mapper for LatentBki {
         decode(decoder, &self.posterior(p)?.mean)
     }
     fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
-        self.map.get(&key_of(p, self.map.config())?).copied()
+        self.map.posterior_in_reach(key_of(p, self.map.config())?)
     }
     fn voxels(&self) -> usize {
-        self.map.len()
+        self.map.in_reach_len()
     }
     fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
-        self.map
-            .sorted()
-            .into_iter()
-            .map(|(k, v)| (k, *v))
-            .collect()
+        self.map.posteriors_sorted()
     }
 }
 
@@ -257,16 +258,15 @@ pub type DeviceMap = LocalMap<D, DEVICE_CAPACITY, PACKED>;
 
 /// Where the device's evicted voxels go: the base-station link plugs in here.
 pub trait VoxelSink: Send {
-    /// One evicted voxel (key, posterior with the prior included, residency number).
-    fn voxel(&mut self, key: VoxelKey, stats: &VoxelStats<D>, residency: u32);
+    /// One evicted voxel (key, what was observed in it during its residency, residency number).
+    fn voxel(&mut self, key: VoxelKey, obs: &ObsStats<D>, residency: u32);
 }
 
 /// LatentBKI on the quantized on-device map, with its evictions merged back on the host.
 pub struct OnDevice {
     map: Box<DeviceMap>,
     /// Evicted voxels merged per key (what the base station's global map holds).
-    evicted: HashMap<VoxelKey, VoxelStats<D>>,
-    prior: VoxelStats<D>,
+    evicted: HashMap<VoxelKey, ObsStats<D>>,
     link: Option<Box<dyn VoxelSink>>,
 }
 
@@ -281,7 +281,6 @@ impl OnDevice {
         let mut map: Box<DeviceMap> = Box::new(LocalMap::EMPTY);
         map.configure(config, window_radius)?;
         Ok(Self {
-            prior: *map.prior(),
             map,
             evicted: HashMap::new(),
             link,
@@ -293,12 +292,12 @@ impl OnDevice {
         &self.map
     }
 
-    /// Everything known about a voxel: the merged evictions and the resident posterior.
-    pub fn combined(&self, key: VoxelKey) -> Option<VoxelStats<D>> {
+    /// Everything observed in a voxel: the merged evictions and the resident statistics.
+    pub fn combined(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         match (self.evicted.get(&key), self.map.get(key)) {
             (Some(e), Some(r)) => {
                 let mut m = *e;
-                m.merge(&r, &self.prior);
+                m.merge(&r);
                 Some(m)
             }
             (Some(e), None) => Some(*e),
@@ -306,7 +305,7 @@ impl OnDevice {
         }
     }
 
-    /// Keys known (evicted or resident).
+    /// Keys observed (evicted or resident).
     pub fn keys(&self) -> Vec<VoxelKey> {
         let mut k: Vec<VoxelKey> = self.evicted.keys().copied().collect();
         k.extend(self.map.iter().map(|v| v.key));
@@ -314,21 +313,37 @@ impl OnDevice {
         k.dedup();
         k
     }
+
+    /// Everything observed, in the host's block map (gathers every posterior in one pass).
+    pub fn observation_map(&self) -> ObsMap<D> {
+        let mut m = ObsMap::new(*self.map.config()).expect("configured in `new`");
+        for k in self.keys() {
+            if let Some(o) = self.combined(k) {
+                m.merge_observations(k, &o);
+            }
+        }
+        m
+    }
+}
+
+impl ObsLookup<D> for OnDevice {
+    fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
+        self.combined(key)
+    }
 }
 
 impl Mapper for OnDevice {
     fn integrate(&mut self, frame: &EncodedFrame) {
         let evicted = &mut self.evicted;
-        let prior = self.prior;
         let link = &mut self.link;
         let mut sink = |e: latentbki::Evicted<'_, D>| -> Result<(), latentbki::SinkFull> {
             if let Some(l) = link.as_mut() {
-                l.voxel(e.key, e.stats, e.residency);
+                l.voxel(e.key, e.obs, e.residency);
             }
             evicted
                 .entry(e.key)
-                .and_modify(|m| m.merge(e.stats, &prior))
-                .or_insert(*e.stats);
+                .and_modify(|m| m.merge(e.obs))
+                .or_insert(*e.obs);
             Ok(())
         };
         self.map
@@ -338,15 +353,14 @@ impl Mapper for OnDevice {
         decode(decoder, &self.posterior(p)?.mean)
     }
     fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
-        self.combined(key_of(p, self.map.config())?)
+        let key = key_of(p, self.map.config())?;
+        let obs = latentbki::gather(self.map.kernel(), self, key).ok()?;
+        (!obs.is_empty()).then(|| obs.posterior(&self.map.prior()))
     }
     fn voxels(&self) -> usize {
-        self.keys().len()
+        self.observation_map().in_reach_len()
     }
     fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
-        self.keys()
-            .into_iter()
-            .filter_map(|k| self.combined(k).map(|v| (k, v)))
-            .collect()
+        self.observation_map().posteriors_sorted()
     }
 }

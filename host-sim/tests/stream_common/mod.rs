@@ -4,13 +4,13 @@
 
 use host_sim::base_station::{BaseStation, VOCAB_CAP};
 use host_sim::link::{ByteLog, SplitMix};
-use host_sim::ReferenceMap;
+use host_sim::{ObsMap, ReferenceMap};
 use latentbki::frame::EncoderSettings;
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{feature_space_id, SessionConfig, SummaryCodec};
 use latentbki::{
-    packed_len, Codebook, Evicted, EvictionSink, FrameEncoder, LocalMap, MapConfig, Pca, SinkFull,
-    VoxelKey, VoxelStats,
+    packed_len, Codebook, Evicted, EvictionSink, FrameEncoder, LocalMap, MapConfig, ObsStats, Pca,
+    SinkFull, VoxelKey, VoxelStats,
 };
 
 pub const D: usize = 64;
@@ -173,13 +173,13 @@ pub fn gauss(rng: &mut SplitMix) -> f32 {
 /// Records what the robot evicted (its own map's view of each voxel) and forwards it to the encoder.
 pub struct Recording<'a> {
     pub encoder: &'a mut Encoder,
-    pub evicted: &'a mut Vec<(VoxelKey, u32, VoxelStats<D>)>,
+    pub evicted: &'a mut Vec<(VoxelKey, u32, ObsStats<D>)>,
 }
 
 impl EvictionSink<D> for Recording<'_> {
     fn evict(&mut self, v: Evicted<'_, D>) -> Result<(), SinkFull> {
         self.encoder.evict(v)?;
-        self.evicted.push((v.key, v.residency, *v.stats));
+        self.evicted.push((v.key, v.residency, *v.obs));
         Ok(())
     }
 }
@@ -189,7 +189,7 @@ pub struct RobotRig {
     pub map: Box<Robot>,
     pub encoder: Box<Encoder>,
     pub uart: ByteLog,
-    pub evicted: Vec<(VoxelKey, u32, VoxelStats<D>)>,
+    pub evicted: Vec<(VoxelKey, u32, ObsStats<D>)>,
     pub live_sent: u64,
 }
 
@@ -214,7 +214,8 @@ impl RobotRig {
         }
     }
 
-    /// Integrate one scan, then spend `budget` bytes: evicted voxels first, then the most changed.
+    /// Integrate one scan, then spend `budget` bytes: evicted voxels first, then the hot (being observed)
+    /// ones as live updates.
     pub fn step(
         &mut self,
         pose: &Isometry3<f32>,
@@ -231,21 +232,16 @@ impl RobotRig {
     }
 
     pub fn tick(&mut self, budget: usize) {
-        let mut changed: Vec<_> = self.map.iter().filter(|v| v.unsent > 0.0).collect();
-        changed.sort_by(|a, b| b.unsent.total_cmp(&a.unsent));
+        let hot: Vec<_> = self.map.hot_voxels().collect();
         let report = self
             .encoder
             .tick(
                 &mut self.uart,
                 budget,
-                changed
-                    .iter()
-                    .map(|v| latentbki::frame::live(v.key, &v.stats, v.residency)),
+                hot.iter()
+                    .map(|v| latentbki::frame::live(v.key, &v.obs, v.residency)),
             )
             .unwrap();
-        for v in &changed[..report.live_sent as usize] {
-            self.map.mark_sent(v.key);
-        }
         self.live_sent += u64::from(report.live_sent);
     }
 
@@ -286,20 +282,25 @@ pub fn feed_chunked<const DD: usize>(base: &mut BaseStation<DD>, bytes: &[u8], s
     }
 }
 
-/// Compare a global map against ground truth (sorted `(key, posterior)`): (voxels compared, argmax
-/// agreement, worst relative λ error, RMS of ‖Δμ‖/‖μ‖). Every truth voxel must be in the map and no other.
+/// Compare a global map against ground truth (sorted `(key, posterior)` of every voxel in reach): (voxels
+/// compared, argmax agreement, worst relative λ error, RMS of ‖Δμ‖/‖μ‖). The map must answer exactly the
+/// truth's voxels.
 pub fn compare(
     world: &World,
     base: &host_sim::base_station::GlobalMap<D>,
     truth: &[(VoxelKey, VoxelStats<D>)],
 ) -> (usize, f64, f64, f64) {
+    let got = base.posteriors();
+    assert_eq!(
+        got.len(),
+        truth.len(),
+        "the global map answers other voxels than the truth"
+    );
     let mut agree = 0usize;
     let mut worst_lambda = 0.0f64;
     let mut sq = 0.0f64;
-    for (k, r) in truth {
-        let b = base
-            .posterior(k)
-            .unwrap_or_else(|| panic!("voxel {k:?} missing from the global map"));
+    for ((gk, b), (k, r)) in got.iter().zip(truth) {
+        assert_eq!(gk, k, "voxel {k:?} missing from the global map");
         worst_lambda = worst_lambda.max(f64::from((b.lambda - r.lambda).abs() / r.lambda));
         let num: f32 = b
             .mean
@@ -312,7 +313,6 @@ pub fn compare(
         agree += usize::from(label(&world.vocab, &b.mean) == label(&world.vocab, &r.mean));
     }
     let n = truth.len();
-    assert_eq!(base.len(), n, "the global map has voxels the truth has not");
     (
         n,
         agree as f64 / n as f64,
@@ -330,15 +330,14 @@ pub fn reference_truth(reference: &ReferenceMap<D>) -> Vec<(VoxelKey, VoxelStats
         .collect()
 }
 
-/// What the robots evicted, merged in f32 without any wire quantization: what the base station must hold
-/// up to the wire's own quantization.
+/// What the robots evicted, merged in f32 without any wire quantization, and gathered: what the base
+/// station must answer up to the wire's own quantization.
 pub fn evicted_truth(world: &World, robots: &[RobotRig]) -> Vec<(VoxelKey, VoxelStats<D>)> {
-    let prior = VoxelStats::from_prior(&world.config.map_config().unwrap().prior());
-    let mut m: std::collections::BTreeMap<VoxelKey, VoxelStats<D>> = Default::default();
+    let mut m = ObsMap::<D>::new(world.config.map_config().unwrap()).unwrap();
     for r in robots {
-        for (k, _, st) in &r.evicted {
-            m.entry(*k).or_insert(prior).merge(st, &prior);
+        for (k, _, obs) in &r.evicted {
+            m.merge_observations(*k, obs);
         }
     }
-    m.into_iter().collect()
+    m.posteriors_sorted()
 }
