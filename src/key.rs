@@ -46,11 +46,14 @@ impl VoxelKey {
             if !p[axis].is_finite() {
                 return Err(KeyError::NonFinite);
             }
-            let i = libm::floorf(p[axis] * inv_voxel_size);
-            if !(i > -(KEY_LIMIT as f32) && i < KEY_LIMIT as f32) {
+            let x = p[axis] * inv_voxel_size;
+            if !(x > -(KEY_LIMIT as f32) && x < KEY_LIMIT as f32) {
                 return Err(KeyError::OutOfRange);
             }
-            k[axis] = i as i32;
+            // floor without libm's `floorf` (a function call on the device): truncate, then step down for
+            // negative non-integers. |x| < 2³⁰, so the conversion is exact.
+            let t = x as i32;
+            k[axis] = t - i32::from(x < t as f32);
         }
         Ok(Self::new(k[0], k[1], k[2]))
     }

@@ -24,7 +24,7 @@ use half::f16;
 //   μ 6 + Ψ 5 (8 steps/octave, 4 octaves): 116 B, 1.6 % / 3.7 % with a 2.8 % trace bias (range clamping)
 //   μ 5 + Ψ 4: 100 B, 1.9 % / 6.5 %                  μ 4 + Ψ 5: 100 B, 1.8 % / 9.3 % (μ noise feeds Ψ)
 /// Bits per μ code (signed).
-pub const MU_BITS: u32 = 6;
+pub const MU_BITS: u32 = 7;
 /// Bits per Ψ code.
 pub const PSI_BITS: u32 = 5;
 /// log2 of the Ψ code steps per octave: 4 steps (mantissas 1, 1.25, 1.5, 1.75: steps of 14–25 %), so 5

@@ -195,6 +195,14 @@ pub(crate) fn update_dim(
     *psi += s_bar + cross * diff * diff;
 }
 
+/// [`update_dim`] for a single observation (S̄ = 0): μ += (k̄/λᵗ)(y − μ), Ψ += (λᵗ⁻¹k̄/λᵗ)(y − μ)².
+#[inline(always)]
+pub(crate) fn update_dim_point(mean: &mut f32, psi: &mut f32, gain: f32, cross: f32, y: f32) {
+    let diff = y - *mean;
+    *mean += gain * diff;
+    *psi += cross * diff * diff;
+}
+
 /// Kernel-weighted raw sums of a batch of points: k̄ = Σk, Σk·y and Σk·y² per dimension.
 ///
 /// Why raw sums next to [`VoxelStats`]: the on-device map accumulates every point of a voxel into its group

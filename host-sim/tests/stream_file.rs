@@ -77,10 +77,10 @@ fn save_load_is_identical_and_damaged_files_are_refused_clearly() {
     assert!(err.to_string().contains("not a latentbki global map"));
     // A newer format version: says which.
     let mut newer = bytes.clone();
-    newer[8] = 2;
+    newer[8] = 3;
     assert!(matches!(
         GlobalMap::<D>::from_bytes(&newer),
-        Err(LoadError::UnsupportedVersion(2))
+        Err(LoadError::UnsupportedVersion(3))
     ));
     // A map of another dimension.
     let err = GlobalMap::<32>::from_bytes(&bytes).unwrap_err();
@@ -167,10 +167,14 @@ fn queries_and_exports_show_the_scene() {
         let (kx, ky) = ((x / voxel).floor() as i32, (y / voxel).floor() as i32);
         img.get_pixel((kx - x0) as u32, (y1 - ky) as u32)
     };
-    assert_eq!(
-        px(4.0, 0.05),
-        host_sim::base_station::export::label_colour(ROAD)
-    );
+    let road = host_sim::base_station::export::label_colour(ROAD);
+    assert_eq!(px(4.0, 0.05), road, "{:?}", {
+        let k = latentbki::VoxelKey::new(40, 0, 0);
+        (
+            map.label(&k, &world.vocab),
+            map.observations(&k).map(|o| o.count),
+        )
+    });
     assert_eq!(
         px(4.0, 2.0),
         host_sim::base_station::export::label_colour(BUILDING)
@@ -196,9 +200,12 @@ fn queries_and_exports_show_the_scene() {
     write_ply(&map, &world.vocab, &ply).unwrap();
     let text = std::fs::read_to_string(&ply).unwrap();
     assert!(text.starts_with("ply\nformat ascii 1.0\n"));
-    assert!(text.contains(&format!("element vertex {}\n", map.len())));
+    // Every voxel the map answers (within the kernel's reach of an observation).
+    let answered = map.posteriors().len();
+    assert!(answered > map.len());
+    assert!(text.contains(&format!("element vertex {answered}\n")));
     assert_eq!(
         text.lines().skip_while(|l| *l != "end_header").count() - 1,
-        map.len()
+        answered
     );
 }

@@ -110,6 +110,17 @@ fn run_scenario(
             f.integrated,
             m.len()
         );
+        if i + 1 == scenario.frames {
+            // Outside the counted regions: how many voxels the full map answers (stored voxels and every
+            // voxel within the kernel's reach of one).
+            report!(
+                "answerable s={} f={} held={} answerable={}",
+                s,
+                scenario.filter_size,
+                m.len(),
+                m.answerable()
+            );
+        }
     };
     let r = match synth::run(scenario, map, encoder, chunk, uart, &mut Markers, on_frame) {
         Ok(r) => r,

@@ -8,7 +8,7 @@
 
 use super::global_map::{argmax, GlobalMap};
 pub use crate::png_io::RgbImage;
-use latentbki::{Codebook, VoxelKey};
+use latentbki::{Codebook, VoxelKey, VoxelStats};
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;
@@ -99,11 +99,15 @@ pub fn ramp(t: f32) -> [u8; 3] {
     core::array::from_fn(|c| (STOPS[i][c] + (STOPS[i + 1][c] - STOPS[i][c]) * f).round() as u8)
 }
 
-/// Per (x, y) column: the topmost key and the keys in the column.
-fn columns<const D: usize>(map: &GlobalMap<D>) -> HashMap<(i32, i32), Vec<VoxelKey>> {
-    let mut cols: HashMap<(i32, i32), Vec<VoxelKey>> = HashMap::new();
-    for k in map.sorted_keys() {
-        cols.entry((k.x, k.y)).or_default().push(k); // sorted: the last one is the topmost
+/// A column's voxels (bottom to top) with their posteriors.
+type Column<const D: usize> = Vec<(VoxelKey, VoxelStats<D>)>;
+
+/// Per (x, y) column: every voxel the map answers (within the kernel's reach of an observation), gathered
+/// in one pass, bottom to top.
+fn columns<const D: usize>(map: &GlobalMap<D>) -> HashMap<(i32, i32), Column<D>> {
+    let mut cols: HashMap<(i32, i32), Column<D>> = HashMap::new();
+    for (k, p) in map.posteriors() {
+        cols.entry((k.x, k.y)).or_default().push((k, p)); // sorted: the last one is the topmost
     }
     cols
 }
@@ -115,7 +119,7 @@ struct Grid {
     h: u32,
 }
 
-fn grid(cols: &HashMap<(i32, i32), Vec<VoxelKey>>) -> Result<Grid, ExportError> {
+fn grid<T>(cols: &HashMap<(i32, i32), T>) -> Result<Grid, ExportError> {
     let (mut x0, mut x1, mut y0, mut y1) = (i32::MAX, i32::MIN, i32::MAX, i32::MIN);
     for &(x, y) in cols.keys() {
         (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
@@ -151,10 +155,10 @@ fn image_size(w: u32, h: u32, scale: u32) -> Result<(u32, u32), ExportError> {
 }
 
 /// Paint one value per column (None = background), north up, `scale` pixels per voxel.
-fn paint(
-    cols: &HashMap<(i32, i32), Vec<VoxelKey>>,
+fn paint<const D: usize>(
+    cols: &HashMap<(i32, i32), Column<D>>,
     scale: u32,
-    mut colour: impl FnMut(&[VoxelKey]) -> Option<[u8; 3]>,
+    mut colour: impl FnMut(&[(VoxelKey, VoxelStats<D>)]) -> Option<[u8; 3]>,
 ) -> Result<RgbImage, ExportError> {
     let g = grid(cols)?;
     let (w, h) = image_size(g.w, g.h, scale)?;
@@ -186,9 +190,9 @@ pub fn label_image<const D: usize, const K: usize>(
     scale: u32,
 ) -> Result<RgbImage, ExportError> {
     let cols = columns(map);
-    paint(&cols, scale, |keys| {
-        let top = keys.last()?;
-        map.label(top, vocab).map(|(l, _)| label_colour(l))
+    paint(&cols, scale, |column| {
+        let (_, top) = column.last()?;
+        argmax(vocab, &top.mean).map(|(l, _)| label_colour(l))
     })
 }
 
@@ -203,10 +207,10 @@ pub fn heat_image<const D: usize, const K: usize>(
     let cols = columns(map);
     let best: HashMap<(i32, i32), f32> = cols
         .iter()
-        .map(|(c, keys)| {
-            let s = keys
+        .map(|(c, column)| {
+            let s = column
                 .iter()
-                .filter_map(|k| map.heat(k, query, category))
+                .map(|(_, p)| query.score(&p.mean, category))
                 .fold(f32::NEG_INFINITY, f32::max);
             (*c, s)
         })
@@ -218,9 +222,9 @@ pub fn heat_image<const D: usize, const K: usize>(
             (a.min(v), b.max(v))
         });
     let span = (hi - lo).max(1e-6);
-    paint(&cols, scale, |keys| {
-        let c = (keys[0].x, keys[0].y);
-        let v = best[&c];
+    paint(&cols, scale, |column| {
+        let (k, _) = column.first()?;
+        let v = best[&(k.x, k.y)];
         v.is_finite().then(|| ramp((v - lo) / span))
     })
 }
@@ -231,10 +235,11 @@ pub fn uncertainty_image<const D: usize>(
     scale: u32,
 ) -> Result<RgbImage, ExportError> {
     let cols = columns(map);
-    let value = |keys: &[VoxelKey]| {
-        keys.iter()
+    let value = |column: &[(VoxelKey, VoxelStats<D>)]| {
+        column
+            .iter()
             .rev()
-            .find_map(|k| map.uncertainty(k).and_then(|u| u.d_optimality))
+            .find_map(|(_, p)| p.d_optimality())
             .filter(|v| *v > 0.0)
             .map(f32::ln)
     };
@@ -326,16 +331,16 @@ pub fn write_ply<const D: usize, const K: usize>(
 mod tests {
     use super::*;
 
-    fn cols(keys: &[(i32, i32)]) -> HashMap<(i32, i32), Vec<VoxelKey>> {
+    fn cols(keys: &[(i32, i32)]) -> HashMap<(i32, i32), Column<2>> {
         keys.iter()
-            .map(|&(x, y)| ((x, y), vec![VoxelKey::new(x, y, 0)]))
+            .map(|&(x, y)| ((x, y), vec![(VoxelKey::new(x, y, 0), VoxelStats::EMPTY)]))
             .collect()
     }
 
     #[test]
     fn refuses_zero_and_oversized_scales() {
         let two_by_one = cols(&[(0, 0), (1, 0)]);
-        let red = |_: &[VoxelKey]| Some([255, 0, 0]);
+        let red = |_: &[(VoxelKey, VoxelStats<2>)]| Some([255, 0, 0]);
         let img = paint(&two_by_one, 3, red).unwrap();
         assert_eq!((img.width(), img.height()), (6, 3));
         assert!(matches!(
