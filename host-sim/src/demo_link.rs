@@ -7,7 +7,8 @@
 //! report after the run.
 
 use crate::base_station::BaseStation;
-use crate::eval::methods::VoxelSink;
+use crate::eval::methods::{Decoder, VoxelSink};
+use crate::ObsMap;
 use crate::link::{split_frames, ByteLog, Faults, FaultyLink};
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
@@ -32,6 +33,23 @@ pub struct DemoLink {
     pub sent_points: f64,
     /// Bytes put on the wire.
     pub bytes: u64,
+    /// Points handed to the encoder per voxel (its distinct voxels).
+    pub sent_keys: std::collections::HashMap<VoxelKey, f64>,
+    /// At the end: the base station's posteriors against the robot's own map.
+    pub agreement: Option<Agreement>,
+}
+
+/// Argmax agreement of the base station's map with the robot's own map.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Agreement {
+    /// Voxels both answer.
+    pub voxels: usize,
+    /// Fraction of them that decode to the same category.
+    pub all: f64,
+    /// Voxels none of whose neighbourhood lost a summary on the link.
+    pub complete: usize,
+    /// Agreement over those: what the codec alone costs.
+    pub codec_only: f64,
 }
 
 impl DemoLink {
@@ -52,6 +70,8 @@ impl DemoLink {
             sent_voxels: 0,
             sent_points: 0.0,
             bytes: 0,
+            sent_keys: Default::default(),
+            agreement: None,
         })))
     }
 
@@ -79,30 +99,86 @@ impl DemoLink {
         self.tick();
     }
 
-    /// One-paragraph account of what crossed the link.
+    /// Compare the base station's map with the robot's own (every voxel either answers, by argmax).
+    fn compare(&mut self, robot: &ObsMap<D>, decoder: &Decoder) {
+        let Some(base) = self.base.map() else { return };
+        let ours: std::collections::HashMap<VoxelKey, latentbki::VoxelStats<D>> =
+            base.posteriors().into_iter().collect();
+        // Voxels whose points did not all arrive (a frame of theirs was lost on the link).
+        let damaged: std::collections::HashSet<VoxelKey> = self
+            .sent_keys
+            .iter()
+            .filter(|(k, n)| base.observations(k).map_or(0.0, |o| f64::from(o.count)) != **n)
+            .map(|(k, _)| *k)
+            .collect();
+        let offsets = latentbki::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(
+            robot.config(),
+        )
+        .map(|l| l.offsets().to_vec())
+        .unwrap_or_default();
+        let (mut both, mut agree, mut complete, mut agree_complete) = (0usize, 0, 0usize, 0);
+        robot.for_each_posterior(|k, r| {
+            if let Some(b) = ours.get(&k) {
+                both += 1;
+                let label = |m: &[f32; D]| decoder.argmax(m).map(|(c, _)| c);
+                let same = usize::from(label(&b.mean) == label(&r.mean));
+                agree += same;
+                if !offsets.iter().any(|o| damaged.contains(&k.offset(*o))) {
+                    complete += 1;
+                    agree_complete += same;
+                }
+            }
+        });
+        self.agreement = Some(Agreement {
+            voxels: both,
+            all: agree as f64 / both.max(1) as f64,
+            complete,
+            codec_only: agree_complete as f64 / complete.max(1) as f64,
+        });
+    }
+
+    /// The link's account in a few stable lines: bytes per integrated point, summaries per voxel, what
+    /// arrived, and how the base station's map agrees with the robot's.
     pub fn summary(&self) -> String {
         let s = self.base.stats();
         let l = self.link.log();
-        let (voxels, mass) = self
+        let (voxels, points) = self
             .base
             .map()
             .map_or((0, 0.0), |m| (m.len(), m.observed_points()));
-        format!(
-            "streamed {} evicted voxels in {} frames ({} B, {:.1} B/voxel) over a faulty link \
-             (byte errors, dropped/truncated/duplicated frames): {} frames arrived intact; the base station \
-             applied {}, refused {} damaged runs of bytes, counted {} frames lost; its global map holds \
-             {} voxels with {:.1} % of the points sent.",
-            self.sent_voxels,
-            l.frames,
+        let mut out = format!(
+            "wire bytes per integrated point: {:.2} ({} B for {:.0} points)\n\
+             summaries sent per global voxel: {:.2} ({} summaries for {} voxels)\n",
+            self.bytes as f64 / self.sent_points.max(1.0),
             self.bytes,
+            self.sent_points,
+            self.sent_voxels as f64 / self.sent_keys.len().max(1) as f64,
+            self.sent_voxels,
+            self.sent_keys.len(),
+        );
+        if let Some(a) = self.agreement {
+            out += &format!(
+                "base station vs robot map, argmax agreement: {:.2} % of {} voxels ({:.2} % of the {} whose \
+                 neighbourhood lost no summary on the link)\n",
+                100.0 * a.all,
+                a.voxels,
+                100.0 * a.codec_only,
+                a.complete
+            );
+        }
+        out += &format!(
+            "link: {} frames ({:.1} B/summary) over a faulty link (byte errors, dropped/truncated/duplicated \
+             frames): {} arrived intact; the base station applied {}, refused {} damaged runs of bytes, counted \
+             {} frames lost; its global map holds {voxels} voxels with {:.1} % of the points sent.",
+            l.frames,
             self.bytes as f64 / self.sent_voxels.max(1) as f64,
             l.intact,
             s.frames,
             s.decoder.refused(),
             s.lost,
-            voxels,
-            100.0 * mass / self.sent_points.max(f64::MIN_POSITIVE),
-        )
+            100.0 * points / self.sent_points.max(f64::MIN_POSITIVE),
+        );
+        out
     }
 }
 
@@ -121,9 +197,16 @@ impl VoxelSink for DemoLinkSink {
             if link.encoder.evict(v).is_ok() {
                 link.sent_voxels += 1;
                 link.sent_points += f64::from(obs.count);
+                *link.sent_keys.entry(key).or_default() += f64::from(obs.count);
                 return;
             }
             link.tick();
         }
+    }
+
+    fn finish(&mut self, robot: &ObsMap<D>, decoder: &Decoder) {
+        let Ok(mut link) = self.0.lock() else { return };
+        link.finish();
+        link.compare(robot, decoder);
     }
 }

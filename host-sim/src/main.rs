@@ -240,7 +240,7 @@ fn main() -> Result<()> {
                 .lock()
                 .map_err(|_| anyhow::anyhow!("link state poisoned"))?;
             link.finish();
-            println!("base station: {}", link.summary());
+            println!("{}", link.summary());
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),

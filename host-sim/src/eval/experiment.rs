@@ -319,6 +319,7 @@ fn run_one(
         }
         bar.inc(1);
     }
+    mapper.finish(&dec.decoder);
     Ok(MethodResult {
         method,
         voxels: mapper.voxels(),

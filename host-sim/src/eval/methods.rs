@@ -68,6 +68,8 @@ pub trait Mapper: Send {
     fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
         Vec::new()
     }
+    /// End of the run (after the last frame was integrated and scored): a robot streams what it still holds.
+    fn finish(&mut self, _decoder: &Decoder) {}
 }
 
 fn key_of(position: [f32; 3], config: &MapConfig) -> Option<VoxelKey> {
@@ -260,6 +262,9 @@ pub type DeviceMap = LocalMap<D, DEVICE_CAPACITY, PACKED>;
 pub trait VoxelSink: Send {
     /// One evicted voxel (key, what was observed in it during its residency, residency number).
     fn voxel(&mut self, key: VoxelKey, obs: &ObsStats<D>, residency: u32);
+    /// End of the run: every voxel has been handed over; `robot` is the robot's whole map as it holds it
+    /// (what was streamed, unquantized by the wire) for comparisons.
+    fn finish(&mut self, _robot: &ObsMap<D>, _decoder: &Decoder) {}
 }
 
 /// LatentBKI on the quantized on-device map, with its evictions merged back on the host.
@@ -362,5 +367,26 @@ impl Mapper for OnDevice {
     }
     fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
         self.observation_map().posteriors_sorted()
+    }
+    fn finish(&mut self, decoder: &Decoder) {
+        // Stream what the map still holds: the robot's last word on every voxel.
+        let evicted = &mut self.evicted;
+        let link = &mut self.link;
+        let mut sink = |e: latentbki::Evicted<'_, D>| -> Result<(), latentbki::SinkFull> {
+            if let Some(l) = link.as_mut() {
+                l.voxel(e.key, e.obs, e.residency);
+            }
+            evicted
+                .entry(e.key)
+                .and_modify(|m| m.merge(e.obs))
+                .or_insert(*e.obs);
+            Ok(())
+        };
+        // The sink never refuses.
+        let _ = self.map.flush(&mut sink);
+        let robot = self.observation_map();
+        if let Some(l) = self.link.as_mut() {
+            l.finish(&robot, decoder);
+        }
     }
 }
