@@ -335,6 +335,18 @@ pub struct Summary<const D: usize> {
     pub psi_max: f32,
     /// The geometric mean of Ψ as sent (D-optimality = covariance factor × this).
     pub psi_geo: f32,
+    /// The μ scale and the largest Ψ were sent with the codec's top code (255): each value was clamped
+    /// there (μ's scale at ≈ 6.0e4, Ψ at ≈ 9.6e5) or lies within 1/8 octave below it. Receivers count it.
+    pub at_ceiling: Ceiling,
+}
+
+/// Which of a summary's log-coded values were sent with the top code (see [`Summary::at_ceiling`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Ceiling {
+    /// The μ scale code was 255.
+    pub mean_scale: bool,
+    /// The largest-Ψ code was 255.
+    pub psi: bool,
 }
 
 impl<const D: usize> Summary<D> {
@@ -720,6 +732,11 @@ pub fn decode_summary<const D: usize>(
     }
     let codes = take(bytes, at, codec.code_len(D))?;
     let (stats, psi_max, psi_geo) = decode_codes::<D>(codec, lambda, codes)?;
+    let psi_at = 1 + (D * usize::from(codec.mean_bits)).div_ceil(8);
+    let at_ceiling = Ceiling {
+        mean_scale: codes.first() == Some(&u8::MAX),
+        psi: codes.get(psi_at) == Some(&u8::MAX),
+    };
     *base = DeltaBase { key, residency };
     Ok(Summary {
         key,
@@ -728,6 +745,7 @@ pub fn decode_summary<const D: usize>(
         stats,
         psi_max,
         psi_geo,
+        at_ceiling,
     })
 }
 
