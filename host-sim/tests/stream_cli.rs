@@ -42,7 +42,10 @@ fn recorded_stream() -> Vec<u8> {
 /// The map a database holds.
 fn stored(path: &std::path::Path) -> GlobalMap<D> {
     let mut store = SqliteStore::open_read_only(path).unwrap();
-    BaseStation::<D>::open(&mut store).unwrap().into_map().unwrap()
+    BaseStation::<D>::open(&mut store)
+        .unwrap()
+        .into_map()
+        .unwrap()
 }
 
 #[test]
@@ -307,6 +310,12 @@ fn map_database_errors_name_the_file_once() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && stderr.contains("no such map database"), "{stderr}");
-    assert!(!dir.path().join("nope.db").exists(), "a reader never creates a database");
+    assert!(
+        !out.status.success() && stderr.contains("no such map database"),
+        "{stderr}"
+    );
+    assert!(
+        !dir.path().join("nope.db").exists(),
+        "a reader never creates a database"
+    );
 }

@@ -91,9 +91,17 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
     assert!(s.decoder.crc_errors > 10, "{s:?}");
     let mut reference = BaseStation::<D>::adopting();
     reference.receive(&clean);
-    assert_same(&restore(&path), &reference, "damaged stream vs its intact frames");
+    assert_same(
+        &restore(&path),
+        &reference,
+        "damaged stream vs its intact frames",
+    );
     assert!(
-        reference.map().unwrap().voxels().any(|(_, v)| !v.live.is_empty()),
+        reference
+            .map()
+            .unwrap()
+            .voxels()
+            .any(|(_, v)| !v.live.is_empty()),
         "live contributions are kept too"
     );
     // Queries answer identically after the round trip.
@@ -117,9 +125,16 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
 
     // Foreign files, other versions and dimensions: clear errors.
     let junk = dir.path().join("junk.db");
-    std::fs::write(&junk, b"this is not a database, it is a text file of some length ........").unwrap();
+    std::fs::write(
+        &junk,
+        b"this is not a database, it is a text file of some length ........",
+    )
+    .unwrap();
     let err = SqliteStore::open(&junk).err().unwrap().to_string();
-    assert!(err.contains("junk.db") && err.contains("not a database"), "{err}");
+    assert!(
+        err.contains("junk.db") && err.contains("not a database"),
+        "{err}"
+    );
     let other = dir.path().join("other.db");
     rusqlite::Connection::open(&other)
         .unwrap()
@@ -138,13 +153,27 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
         SqliteStore::open(&newer).err().unwrap(),
         SqliteStore::open_read_only(&newer).err().unwrap(),
     ] {
-        assert!(matches!(err, StoreError::Version { found: 99, .. }), "{err}");
-        assert!(err.to_string().contains("schema version 99 is not supported"));
+        assert!(
+            matches!(err, StoreError::Version { found: 99, .. }),
+            "{err}"
+        );
+        assert!(err
+            .to_string()
+            .contains("schema version 99 is not supported"));
     }
     let err = BaseStation::<32>::open(&mut SqliteStore::open(&path).unwrap())
         .err()
         .unwrap();
-    assert!(matches!(err, RestoreError::Dimension { found: 64, expected: 32 }), "{err}");
+    assert!(
+        matches!(
+            err,
+            RestoreError::Dimension {
+                found: 64,
+                expected: 32
+            }
+        ),
+        "{err}"
+    );
     // A damaged voxel record is refused, not loaded.
     let broken = dir.path().join("broken.db");
     std::fs::copy(&path, &broken).unwrap();
@@ -159,7 +188,10 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
         .err()
         .unwrap()
         .to_string();
-    assert!(err.contains("voxel record") && err.contains("malformed"), "{err}");
+    assert!(
+        err.contains("voxel record") && err.contains("malformed"),
+        "{err}"
+    );
     let err = SqliteStore::open_read_only(&dir.path().join("nope.db"))
         .err()
         .unwrap()
@@ -170,9 +202,7 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
 #[test]
 fn values_the_codec_clamps_are_counted() {
     let world = World::new(SummaryCodec::DEFAULT);
-    let mut encoder = Box::new(
-        Encoder::new(world.config, EncoderSettings::new(1, 1)).unwrap(),
-    );
+    let mut encoder = Box::new(Encoder::new(world.config, EncoderSettings::new(1, 1)).unwrap());
     let mut uart = ByteLog::default();
     let stats = |m: f32, p: f32| VoxelStats::<D> {
         lambda: 4.0,
@@ -180,7 +210,12 @@ fn values_the_codec_clamps_are_counted() {
         psi: [p; D],
     };
     // Huge mean (scale ≫ 6e4), huge Ψ (≫ 9.6e5), both, and an ordinary voxel.
-    let voxels = [stats(1e6, 1.0), stats(0.5, 1e8), stats(1e6, 1e8), stats(0.5, 2.0)];
+    let voxels = [
+        stats(1e6, 1.0),
+        stats(0.5, 1e8),
+        stats(1e6, 1e8),
+        stats(0.5, 2.0),
+    ];
     for (i, s) in voxels.iter().enumerate() {
         encoder
             .evict(Evicted {
@@ -190,17 +225,29 @@ fn values_the_codec_clamps_are_counted() {
             })
             .unwrap();
     }
-    encoder.tick(&mut uart, usize::MAX, core::iter::empty()).unwrap();
+    encoder
+        .tick(&mut uart, usize::MAX, core::iter::empty())
+        .unwrap();
     let mut base = BaseStation::<D>::new(world.config).unwrap();
     base.receive(&uart.0);
     let s = base.stats();
-    assert_eq!((s.merged, s.clamped_mean_scale, s.clamped_psi), (4, 2, 2), "{s:?}");
+    assert_eq!(
+        (s.merged, s.clamped_mean_scale, s.clamped_psi),
+        (4, 2, 2),
+        "{s:?}"
+    );
 }
 
 /// The `host-sim` binary as a base station on stdin, writing `db`.
 fn spawn_station(db: &Path, commit_ms: u64) -> Child {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
-        .args(["base-station", "-", "--commit-ms", &commit_ms.to_string(), "--map"])
+        .args([
+            "base-station",
+            "-",
+            "--commit-ms",
+            &commit_ms.to_string(),
+            "--map",
+        ])
         .arg(db)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -295,7 +342,11 @@ fn sigkill_at_random_points_loses_at_most_the_last_commit_interval_and_merges_on
     drop(stdin);
     let out = child.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(stdout.contains("continuing"), "{stdout}");
     for p in &all[at..] {
         twin.receive(p);
@@ -309,7 +360,10 @@ fn sigkill_at_random_points_loses_at_most_the_last_commit_interval_and_merges_on
     whole.receive(&bytes);
     let (f, w) = (fin.sessions(), whole.sessions());
     assert_eq!(f.len(), 1);
-    let (fs, ws) = (f.values().next().unwrap().seq, w.values().next().unwrap().seq);
+    let (fs, ws) = (
+        f.values().next().unwrap().seq,
+        w.values().next().unwrap().seq,
+    );
     assert_eq!(ws.lost, 0);
     assert_eq!(fs.highest(), ws.highest());
     let accepted: Vec<u32> = twin.journal().iter().map(|e| e.seq).collect();
@@ -326,7 +380,10 @@ fn sigkill_at_random_points_loses_at_most_the_last_commit_interval_and_merges_on
             _ => once.receive(p),
         }
     }
-    assert_eq!(missing, fs.lost, "every frame missing from the map is counted lost");
+    assert_eq!(
+        missing, fs.lost,
+        "every frame missing from the map is counted lost"
+    );
     assert_eq!(ws.received - fs.received, fs.lost);
     assert!(once.map() == fin.map(), "each frame merged exactly once");
     println!(
@@ -361,8 +418,15 @@ fn sigterm_commits_everything_received() {
     let out = child.wait_with_output().unwrap();
     drop(stdin);
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout.contains("stopped by a signal") && stdout.contains("frames lost 0"), "{stdout}");
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("stopped by a signal") && stdout.contains("frames lost 0"),
+        "{stdout}"
+    );
     let mut whole = BaseStation::<D>::adopting();
     whole.receive(&bytes);
     assert_same(&restore(&db), &whole, "after SIGTERM");
@@ -407,7 +471,10 @@ fn readers_get_consistent_snapshots_while_the_receiver_writes() {
             continue;
         }
         while twin.sessions() != snap.sessions() {
-            assert!(fed < all.len(), "a snapshot matches no prefix of the stream");
+            assert!(
+                fed < all.len(),
+                "a snapshot matches no prefix of the stream"
+            );
             twin.receive(all[fed]);
             fed += 1;
         }
@@ -421,10 +488,12 @@ fn readers_get_consistent_snapshots_while_the_receiver_writes() {
                 .output()
                 .unwrap();
             let text = String::from_utf8_lossy(&info.stdout);
-            assert!(info.status.success() && text.contains("robot 4 session 1004"), "{text}");
+            assert!(
+                info.status.success() && text.contains("robot 4 session 1004"),
+                "{text}"
+            );
             let pca = dir.path().join("pca.npz");
-            host_sim::npy_io::write_pca_npz(&pca, &World::new(SummaryCodec::DEFAULT).pca)
-                .unwrap();
+            host_sim::npy_io::write_pca_npz(&pca, &World::new(SummaryCodec::DEFAULT).pca).unwrap();
             let q = Command::new(env!("CARGO_BIN_EXE_host-sim"))
                 .arg("map-query")
                 .arg(&db)
@@ -437,7 +506,11 @@ fn readers_get_consistent_snapshots_while_the_receiver_writes() {
                 .output()
                 .unwrap();
             let text = String::from_utf8_lossy(&q.stdout);
-            assert!(q.status.success(), "{text}{}", String::from_utf8_lossy(&q.stderr));
+            assert!(
+                q.status.success(),
+                "{text}{}",
+                String::from_utf8_lossy(&q.stderr)
+            );
             assert_eq!(text.matches("query \"road\": score").count(), 3, "{text}");
             assert!(dir.path().join("live-heat.png").exists());
             cli_ran = true;
@@ -446,7 +519,10 @@ fn readers_get_consistent_snapshots_while_the_receiver_writes() {
     writer.join().unwrap();
     let out = child.wait_with_output().unwrap();
     assert!(out.status.success());
-    assert!(checked >= 3 && cli_ran, "only {checked} snapshots taken during the run");
+    assert!(
+        checked >= 3 && cli_ran,
+        "only {checked} snapshots taken during the run"
+    );
     let mut whole = BaseStation::<D>::adopting();
     whole.receive(&bytes);
     assert_same(&restore(&db), &whole, "after the run");

@@ -129,9 +129,7 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
 /// The vocabulary (`--pca`, `--classes`) and the query (`--query`) codebooks.
 type Vocab = (Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>);
 
-fn read_vocabulary(
-    args: &OutputArgs,
-) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
+fn read_vocabulary(args: &OutputArgs) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
     let Some(p) = &args.pca else {
         if args.classes.is_some() {
             bail!("--classes needs --pca (the PCA the robots used)");
@@ -318,7 +316,11 @@ pub fn pump<const D: usize>(
         }
         let mut wait = POLL;
         if base.has_changes() {
-            wait = wait.min(options.commit_every.saturating_sub(now.duration_since(last_commit)));
+            wait = wait.min(
+                options
+                    .commit_every
+                    .saturating_sub(now.duration_since(last_commit)),
+            );
         }
         if let Some(d) = options.duration {
             wait = wait.min(d.saturating_sub(now.duration_since(start)));
@@ -501,7 +503,8 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
     let mut store = SqliteStore::open_read_only(&args.db)?;
     let snapshot = store.snapshot()?;
     let committed = snapshot.committed_at_ms;
-    let base = BaseStation::<DIM>::restore(snapshot).with_context(|| args.db.display().to_string())?;
+    let base =
+        BaseStation::<DIM>::restore(snapshot).with_context(|| args.db.display().to_string())?;
     println!(
         "{}: map database schema {SCHEMA_VERSION}, voxel record {}, last commit {}",
         args.db.display(),
@@ -540,7 +543,10 @@ pub fn map_query(args: &MapQueryArgs) -> Result<()> {
     let (vocab, query) = read_vocabulary(&args.out)?;
     let base = read_map(&args.db)?;
     let Some(map) = base.map() else {
-        bail!("{}: no session configuration yet: the map is empty", args.db.display());
+        bail!(
+            "{}: no session configuration yet: the map is empty",
+            args.db.display()
+        );
     };
     println!("{}: {} voxels", args.db.display(), map.len());
     show(map, &args.out, vocab.as_ref(), query.as_ref(), args.top)

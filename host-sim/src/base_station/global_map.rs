@@ -467,7 +467,10 @@ mod tests {
         let rec = v.to_record();
         assert_eq!(GlobalVoxel::<D>::from_record(&rec).unwrap(), *v);
         for cut in 0..rec.len() {
-            assert!(GlobalVoxel::<D>::from_record(&rec[..cut]).is_err(), "cut {cut}");
+            assert!(
+                GlobalVoxel::<D>::from_record(&rec[..cut]).is_err(),
+                "cut {cut}"
+            );
         }
         let mut longer = rec.clone();
         longer.push(0);
@@ -480,7 +483,10 @@ mod tests {
         );
         let mut nan = rec.clone();
         nan[1..5].copy_from_slice(&f32::NAN.to_le_bytes());
-        assert_eq!(GlobalVoxel::<D>::from_record(&nan), Err(RecordError::NotFinite));
+        assert_eq!(
+            GlobalVoxel::<D>::from_record(&nan),
+            Err(RecordError::NotFinite)
+        );
         // A record of another dimension is refused, not misread.
         assert!(GlobalVoxel::<8>::from_record(&rec).is_err());
     }

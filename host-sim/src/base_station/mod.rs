@@ -115,7 +115,9 @@ pub enum RestoreError {
     #[error(transparent)]
     Store(#[from] StoreError),
     /// The stored map is for another feature dimension.
-    #[error("the map database holds {found}-dimensional voxels; this build is {expected}-dimensional")]
+    #[error(
+        "the map database holds {found}-dimensional voxels; this build is {expected}-dimensional"
+    )]
     Dimension {
         /// Stored.
         found: u32,
@@ -213,7 +215,9 @@ impl<const D: usize> BaseStation<D> {
             .map_err(|e| RestoreError::Invalid(format!("session configuration: {e:?}")))?;
         for (key, rec) in &snapshot.voxels {
             if !key.in_range() {
-                return Err(RestoreError::Invalid(format!("voxel key {key:?} out of range")));
+                return Err(RestoreError::Invalid(format!(
+                    "voxel key {key:?} out of range"
+                )));
             }
             let v = GlobalVoxel::from_record(rec)
                 .map_err(|e| RestoreError::Invalid(format!("voxel {key:?}: {e}")))?;
