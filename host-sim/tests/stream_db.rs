@@ -296,8 +296,12 @@ fn sigkill_at_random_points_loses_at_most_the_last_commit_interval_and_merges_on
         }
         stdin.flush().unwrap();
         // Longer than a commit interval: everything above must be committed before the kill.
-        std::thread::sleep(Duration::from_millis(COMMIT_MS * 3 + 700));
-        let must_have = delivered.len();
+        std::thread::sleep(Duration::from_millis(COMMIT_MS * 3 + 1200));
+        // Up to the last whole frame (a lone delimiter after it changes nothing to commit).
+        let must_have = delivered
+            .iter()
+            .rposition(|p| seq_of(p).is_some())
+            .map_or(0, |i| i + 1);
         for p in &all[pause_at..kill_at] {
             stdin.write_all(p).unwrap();
             delivered.push(p.to_vec());
@@ -427,9 +431,31 @@ fn sigterm_commits_everything_received() {
         stdout.contains("stopped by a signal") && stdout.contains("frames lost 0"),
         "{stdout}"
     );
+    // What it says it accepted (all of it, unless the machine was too slow to read the pipe in 1.5 s) is
+    // what the database holds: the stream's prefix of that many frames.
+    let accepted: u32 = stdout
+        .split("frames accepted ")
+        .nth(1)
+        .and_then(|t| t.split(';').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap();
+    let stored = restore(&db);
+    let mut twin = BaseStation::<D>::adopting();
+    let mut pieces = pieces(&bytes).into_iter();
+    while twin.stats().frames < accepted {
+        twin.receive(pieces.next().unwrap());
+    }
+    assert_same(&stored, &twin, "after SIGTERM");
     let mut whole = BaseStation::<D>::adopting();
     whole.receive(&bytes);
-    assert_same(&restore(&db), &whole, "after SIGTERM");
+    println!(
+        "SIGTERM: {accepted} of {} frames received, all in the database",
+        whole.stats().frames
+    );
+    assert!(
+        accepted > whole.stats().frames / 2,
+        "the child read too little to test anything"
+    );
 }
 
 #[test]
@@ -448,7 +474,7 @@ fn readers_get_consistent_snapshots_while_the_receiver_writes() {
                     stdin.write_all(p).unwrap();
                 }
                 stdin.flush().unwrap();
-                std::thread::sleep(Duration::from_millis(15));
+                std::thread::sleep(Duration::from_millis(30));
             }
         }
     });
@@ -458,13 +484,10 @@ fn readers_get_consistent_snapshots_while_the_receiver_writes() {
     let mut checked = 0;
     let start = Instant::now();
     let mut cli_ran = false;
-    while !writer.is_finished() && start.elapsed() < Duration::from_secs(120) {
-        if !db.exists() {
-            std::thread::sleep(Duration::from_millis(20));
-            continue;
-        }
+    while child.try_wait().unwrap().is_none() && start.elapsed() < Duration::from_secs(120) {
+        std::thread::sleep(Duration::from_millis(10));
         let Ok(mut store) = SqliteStore::open_read_only(&db) else {
-            continue; // created but not yet initialised
+            continue; // not created or not initialised yet
         };
         let snap = BaseStation::<D>::open(&mut store).unwrap();
         if snap.sessions().is_empty() {
