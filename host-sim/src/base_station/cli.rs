@@ -533,6 +533,16 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
         map.len(),
         map.kernel_mass()
     );
+    let size = |suffix: &str| {
+        let mut p = args.db.clone().into_os_string();
+        p.push(suffix);
+        std::fs::metadata(p).map_or(0, |m| m.len())
+    };
+    println!(
+        "file {:.1} MiB (+ write-ahead log {:.1} MiB)",
+        size("") as f64 / (1 << 20) as f64,
+        size("-wal") as f64 / (1 << 20) as f64
+    );
     print_sessions(&base);
     Ok(())
 }
