@@ -123,6 +123,15 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
     assert!(restore(&path).map() == reference.map());
     drop(store);
 
+    // One writer at a time (readers any number); the lock goes with the store.
+    let writer = SqliteStore::open(&path).unwrap();
+    let err = SqliteStore::open(&path).err().unwrap();
+    assert!(matches!(err, StoreError::InUse(_)), "{err}");
+    assert!(err.to_string().contains("another base station is writing"));
+    assert!(SqliteStore::open_read_only(&path).is_ok());
+    drop(writer);
+    drop(SqliteStore::open(&path).unwrap());
+
     // Foreign files, other versions and dimensions: clear errors.
     let junk = dir.path().join("junk.db");
     std::fs::write(

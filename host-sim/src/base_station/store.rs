@@ -79,6 +79,17 @@ pub enum StoreError {
     /// A read-only open of a database that does not exist.
     #[error("{0}: no such map database")]
     Missing(String),
+    /// Another receiver has the database open for writing (two working sets would overwrite each other).
+    #[error("{0}: another base station is writing this map database")]
+    InUse(String),
+    /// The receiver's lock file could not be opened.
+    #[error("{path}: cannot open the lock file: {error}")]
+    Lock {
+        /// The lock file.
+        path: String,
+        /// The cause.
+        error: std::io::Error,
+    },
 }
 
 /// Storage of the global map: whole snapshots out, atomic change sets in.
@@ -93,6 +104,9 @@ pub trait MapStore {
 pub struct SqliteStore {
     conn: Connection,
     path: PathBuf,
+    /// The receiver's exclusive lock (`<db>-receiver.lock`), held while open for writing: one writer per
+    /// database, any number of readers.
+    _lock: Option<std::fs::File>,
 }
 
 const SCHEMA: &str = "
@@ -113,10 +127,38 @@ CREATE TABLE sessions (
 impl SqliteStore {
     /// Open the database for the receiver (created if missing), checking its schema version.
     pub fn open(path: &Path) -> Result<Self, StoreError> {
+        let lock = if path.as_os_str() == ":memory:" {
+            None
+        } else {
+            let mut lock_path = path.as_os_str().to_owned();
+            lock_path.push("-receiver.lock");
+            let file = std::fs::OpenOptions::new()
+                .create(true)
+                .truncate(false)
+                .write(true)
+                .open(&lock_path)
+                .map_err(|error| StoreError::Lock {
+                    path: PathBuf::from(&lock_path).display().to_string(),
+                    error,
+                })?;
+            match file.try_lock() {
+                Ok(()) => Some(file),
+                Err(std::fs::TryLockError::WouldBlock) => {
+                    return Err(StoreError::InUse(path.display().to_string()))
+                }
+                Err(std::fs::TryLockError::Error(error)) => {
+                    return Err(StoreError::Lock {
+                        path: PathBuf::from(&lock_path).display().to_string(),
+                        error,
+                    })
+                }
+            }
+        };
         let conn = Connection::open(path).map_err(sqlite(path))?;
         let mut store = Self {
             conn,
             path: path.to_path_buf(),
+            _lock: lock,
         };
         store.init().map_err(|e| store.err(e))??;
         Ok(store)
@@ -135,6 +177,7 @@ impl SqliteStore {
         let store = Self {
             conn,
             path: path.to_path_buf(),
+            _lock: None,
         };
         store
             .conn
