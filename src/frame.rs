@@ -711,7 +711,9 @@ pub enum SeqVerdict {
 }
 
 /// Sequence numbers of one session: counts lost, duplicate and late frames (a 64-frame window).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// Serializable so that a receiver can persist it with the frames it marks merged (the base station's
+/// database).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SeqTracker {
     started: bool,

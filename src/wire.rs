@@ -334,6 +334,19 @@ pub struct Summary<const D: usize> {
     pub is_final: bool,
     /// What was observed in the voxel during this residency. n is exact; m and S are quantized.
     pub obs: ObsStats<D>,
+    /// The mean's scale and the largest scatter entry were sent with the codec's top code (255): each value
+    /// was clamped there (the mean's scale at ≈ 6.0e4, S at ≈ 9.6e5) or lies within 1/8 octave below it.
+    /// Receivers count it.
+    pub at_ceiling: Ceiling,
+}
+
+/// Which of a summary's log-coded values were sent with the top code (see [`Summary::at_ceiling`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Ceiling {
+    /// The mean's scale code was 255.
+    pub mean_scale: bool,
+    /// The largest-scatter code was 255.
+    pub psi: bool,
 }
 
 /// Key and residency of the previous summary in a frame (deltas are taken against it).
@@ -701,12 +714,18 @@ pub fn decode_summary<const D: usize>(
     }
     let codes = take(bytes, at, codec.code_len(D))?;
     let obs = decode_codes::<D>(codec, count as f32, codes)?;
+    let psi_at = 1 + (D * usize::from(codec.mean_bits)).div_ceil(8);
+    let at_ceiling = Ceiling {
+        mean_scale: codes.first() == Some(&u8::MAX),
+        psi: codes.get(psi_at) == Some(&u8::MAX),
+    };
     *base = DeltaBase { key, residency };
     Ok(Summary {
         key,
         residency,
         is_final,
         obs,
+        at_ceiling,
     })
 }
 

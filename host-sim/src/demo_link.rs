@@ -8,8 +8,8 @@
 
 use crate::base_station::BaseStation;
 use crate::eval::methods::{Decoder, VoxelSink};
-use crate::ObsMap;
 use crate::link::{split_frames, ByteLog, Faults, FaultyLink};
+use crate::ObsMap;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
 use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
@@ -111,11 +111,10 @@ impl DemoLink {
             .filter(|(k, n)| base.observations(k).map_or(0.0, |o| f64::from(o.count)) != **n)
             .map(|(k, _)| *k)
             .collect();
-        let offsets = latentbki::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(
-            robot.config(),
-        )
-        .map(|l| l.offsets().to_vec())
-        .unwrap_or_default();
+        let offsets =
+            latentbki::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(robot.config())
+                .map(|l| l.offsets().to_vec())
+                .unwrap_or_default();
         let (mut both, mut agree, mut complete, mut agree_complete) = (0usize, 0, 0usize, 0);
         robot.for_each_posterior(|k, r| {
             if let Some(b) = ours.get(&k) {

@@ -30,10 +30,16 @@ enum Command {
     Eval(host_sim::eval::cli::EvalArgs),
     /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
     Query(host_sim::eval::cli::QueryArgs),
-    /// Receive robots' streams (serial port, file, pty or stdin) into the global map; save it, export PNG/PLY.
+    /// Receive robots' streams (serial port, file, pty or stdin) into the global map database (SQLite,
+    /// crash-safe); export PNG/PLY.
     BaseStation(host_sim::base_station::cli::BaseStationArgs),
     /// Measure the headline speed figures on this machine (one core, medians): integrate, gather.
     Bench(host_sim::bench::BenchArgs),
+    /// Summarise a map database (read-only: works while a base station writes it).
+    MapInfo(host_sim::base_station::cli::MapInfoArgs),
+    /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
+    /// writes it).
+    MapQuery(host_sim::base_station::cli::MapQueryArgs),
     /// Re-embed the vocabulary with the real text encoder and write the table (feature `encoder`).
     #[cfg(feature = "encoder")]
     EmbedVocab(EmbedVocabArgs),
@@ -259,6 +265,8 @@ fn main() -> Result<()> {
             Ok(())
         }
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
+        Command::MapInfo(args) => host_sim::base_station::cli::map_info(&args),
+        Command::MapQuery(args) => host_sim::base_station::cli::map_query(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
             let first = read_frame(&args.frames[0]).context("reading the first frame")?;

@@ -1,10 +1,11 @@
-//! `host-sim base-station` end to end: a recorded stream in a file (and on stdin) becomes a saved map, a
-//! PLY and PNGs; running again on the saved map with the same stream changes nothing; garbage is refused
+//! `host-sim base-station` end to end: a recorded stream in a file (and on stdin) becomes a map database, a
+//! PLY and PNGs; running again on the database with the same stream changes nothing; garbage is refused
 //! with a clear message.
 
 mod stream_common;
 
-use host_sim::base_station::GlobalMap;
+use host_sim::base_station::store::SqliteStore;
+use host_sim::base_station::{BaseStation, GlobalMap};
 use host_sim::link::SplitMix;
 use latentbki::wire::SummaryCodec;
 use std::io::Write;
@@ -38,12 +39,21 @@ fn recorded_stream() -> Vec<u8> {
     robot.uart.0
 }
 
+/// The map a database holds.
+fn stored(path: &std::path::Path) -> GlobalMap<D> {
+    let mut store = SqliteStore::open_read_only(path).unwrap();
+    BaseStation::<D>::open(&mut store)
+        .unwrap()
+        .into_map()
+        .unwrap()
+}
+
 #[test]
 fn base_station_command_keeps_saves_and_exports_the_map() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("robot.bin");
     std::fs::write(&input, recorded_stream()).unwrap();
-    let map = dir.path().join("global.lbki");
+    let map = dir.path().join("global.db");
     let (code, stdout, stderr) = base_station([
         input.as_os_str(),
         "--map".as_ref(),
@@ -56,11 +66,11 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
     assert_eq!(code, Some(0), "{stdout}\n{stderr}");
     assert!(stdout.contains("frames lost 0"), "{stdout}");
     assert!(stdout.contains("robot 4 session 1004"), "{stdout}");
-    let saved = GlobalMap::<D>::load(&map).unwrap();
+    let saved = stored(&map);
     assert!(saved.len() > 1000);
     assert!(dir.path().join("g.ply").exists() && dir.path().join("g-uncertainty.png").exists());
 
-    // Same stream on stdin, continuing the saved map: nothing merges twice.
+    // Same stream on stdin, continuing the database: nothing merges twice.
     let mut child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
         .args(["base-station", "-", "--map"])
         .arg(&map)
@@ -78,7 +88,7 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}");
     assert!(stdout.contains("summaries merged 0, live 0"), "{stdout}");
-    assert_eq!(GlobalMap::<D>::load(&map).unwrap(), saved);
+    assert!(stored(&map) == saved);
 
     // Garbage: a clear error, non-zero exit.
     let junk = dir.path().join("junk.bin");
@@ -222,13 +232,10 @@ fn options_are_checked_before_the_stream_is_read() {
             vec!["--map".into(), p(&junk.join("g.lbki"))],
             vec![format!("{} is not a folder", junk.display())],
         ),
-        // A map file that is not one: the error names the file.
+        // A map database that is not one: the error names the file.
         (
             vec!["--map".into(), p(&junk)],
-            vec![
-                junk.display().to_string(),
-                "not a latentbki global map".into(),
-            ],
+            vec![junk.display().to_string(), "not a database".into()],
         ),
     ];
     for (args, wanted) in cases {
@@ -289,11 +296,26 @@ fn vocabulary_query_and_image_size_after_the_stream() {
 }
 
 #[test]
-fn map_file_os_errors_are_printed_once() {
+fn map_database_errors_name_the_file_once() {
     let dir = tempfile::tempdir().unwrap();
-    let err = GlobalMap::<D>::load(&dir.path().join("nope.lbki")).unwrap_err();
+    let err = SqliteStore::open_read_only(&dir.path().join("nope.db"))
+        .err()
+        .unwrap();
     // As main prints it: the message and its chain of causes.
     let shown = format!("{:?}", anyhow::Error::new(err));
-    assert!(shown.contains("nope.lbki"), "{shown}");
-    assert_eq!(shown.matches("os error 2").count(), 1, "{shown}");
+    assert_eq!(shown.matches("nope.db").count(), 1, "{shown}");
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .arg("map-info")
+        .arg(dir.path().join("nope.db"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("no such map database"),
+        "{stderr}"
+    );
+    assert!(
+        !dir.path().join("nope.db").exists(),
+        "a reader never creates a database"
+    );
 }

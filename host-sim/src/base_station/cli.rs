@@ -1,8 +1,13 @@
-//! `host-sim base-station`: receive robots' streams from a serial port, a file, a pty or stdin; keep, save
-//! and export the global map.
+//! `host-sim base-station`: receive robots' streams from a serial port, a file, a pty or stdin into the
+//! global map database; `host-sim map-info` and `host-sim map-query` read that database, also while a
+//! base station is writing it.
+//!
+//! Bytes are read on their own thread, so the receiver commits at the bounded interval (`--commit-ms`)
+//! and answers SIGINT/SIGTERM even while the port is silent: the signal commits, prints the summary and
+//! exits cleanly (a second signal exits at once).
 
 use super::export::{write_ply, write_pngs, MAX_SIDE};
-use super::file::LoadError;
+use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 use crate::npy_io::NpzReader;
 use anyhow::{bail, Context, Result};
@@ -11,6 +16,9 @@ use latentbki::wire::feature_space_id;
 use latentbki::{Codebook, Pca};
 use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Feature dimension the base station is built for (the wire's D).
@@ -32,9 +40,21 @@ pub struct BaseStationArgs {
     /// Stop after this many seconds (serial ports and ptys never end by themselves).
     #[arg(long, value_parser = parse_duration, allow_negative_numbers = true)]
     duration: Option<Duration>,
-    /// Continue this saved map (if the file exists) and save back to it at the end.
+    /// The global map database (SQLite): created if missing, continued if present (sessions included:
+    /// frames already merged are recognised). Without it the map lives in memory only.
     #[arg(long)]
     map: Option<PathBuf>,
+    /// Commit accepted frames to the database at least this often (milliseconds): a crash loses at most
+    /// the frames of the last interval, and counts them lost on restart.
+    #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    commit_ms: u64,
+    #[command(flatten)]
+    out: OutputArgs,
+}
+
+/// What to show of the map at the end: vocabulary, query, pictures.
+#[derive(Args, Debug)]
+pub struct OutputArgs {
     /// PCA of the robots' features (.npz with `mean` (384) and `components` (64×384), float32), to decode
     /// labels and queries; it must match the robots' feature-space id.
     #[arg(long)]
@@ -54,6 +74,25 @@ pub struct BaseStationArgs {
     /// Write the map as an ASCII PLY point cloud.
     #[arg(long)]
     ply: Option<PathBuf>,
+}
+
+/// Options of `host-sim map-info`.
+#[derive(Args, Debug)]
+pub struct MapInfoArgs {
+    /// The map database (opened read-only; a running base station keeps writing it).
+    db: PathBuf,
+}
+
+/// Options of `host-sim map-query`.
+#[derive(Args, Debug)]
+pub struct MapQueryArgs {
+    /// The map database (opened read-only; a running base station keeps writing it).
+    db: PathBuf,
+    /// With --query: list this many best-matching voxels.
+    #[arg(long, default_value_t = 10)]
+    top: usize,
+    #[command(flatten)]
+    out: OutputArgs,
 }
 
 /// `--duration`: seconds, finite, >= 0 and representable as a [`Duration`].
@@ -90,9 +129,7 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
 /// The vocabulary (`--pca`, `--classes`) and the query (`--query`) codebooks.
 type Vocab = (Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>);
 
-fn read_vocabulary(
-    args: &BaseStationArgs,
-) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
+fn read_vocabulary(args: &OutputArgs) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
     let Some(p) = &args.pca else {
         if args.classes.is_some() {
             bail!("--classes needs --pca (the PCA the robots used)");
@@ -130,7 +167,7 @@ fn read_vocabulary(
 
 /// The PCA must be the robots' (the map's feature-space id) or the labels would be meaningless.
 fn check_feature_space(
-    args: &BaseStationArgs,
+    args: &OutputArgs,
     vocab: Option<&Vocab>,
     map: &GlobalMap<DIM>,
 ) -> Result<()> {
@@ -174,34 +211,249 @@ fn read_pca(path: &Path) -> Result<Box<Pca<DIM, FULL>>> {
     Ok(pca)
 }
 
-/// Run the command.
+/// Check the output options before anything is read.
+fn check_outputs(out: &OutputArgs) -> Result<()> {
+    if let Some(p) = &out.png {
+        check_output("--png", p, true)?;
+    }
+    if let Some(p) = &out.ply {
+        check_output("--ply", p, false)?;
+    }
+    Ok(())
+}
+
+/// Open (or create) the receiver's database and continue its map.
+pub fn open_station(path: &Path) -> Result<(SqliteStore, BaseStation<DIM>)> {
+    let mut store = SqliteStore::open(path)?;
+    let base = BaseStation::<DIM>::open(&mut store).with_context(|| path.display().to_string())?;
+    Ok((store, base))
+}
+
+/// Read the map a database holds as of its last commit (read-only: works while a base station writes).
+pub fn read_map(path: &Path) -> Result<BaseStation<DIM>> {
+    let mut store = SqliteStore::open_read_only(path)?;
+    BaseStation::<DIM>::open(&mut store).with_context(|| path.display().to_string())
+}
+
+/// How [`pump`] ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ending {
+    /// The input ended.
+    EndOfInput,
+    /// `--duration` passed.
+    Deadline,
+    /// SIGINT or SIGTERM.
+    Signal,
+}
+
+/// How [`pump`] runs.
+#[derive(Clone, Debug)]
+pub struct PumpOptions {
+    /// Commit at least this often while there are changes.
+    pub commit_every: Duration,
+    /// Stop after this long.
+    pub duration: Option<Duration>,
+    /// Stop when this becomes true (set by a signal handler).
+    pub stop: Arc<AtomicBool>,
+}
+
+/// Read `source` on its own thread (chunks of up to 64 KiB).
+pub fn spawn_reader(mut source: Box<dyn Read + Send>) -> Receiver<std::io::Result<Vec<u8>>> {
+    let (tx, rx) = sync_channel(16);
+    std::thread::spawn(move || {
+        let mut buf = vec![0u8; 64 * 1024];
+        loop {
+            match source.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => {
+                    if tx.send(Ok(buf[..n].to_vec())).is_err() {
+                        return;
+                    }
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+                    ) => {}
+                Err(e) => {
+                    let _ = tx.send(Err(e));
+                    return;
+                }
+            }
+        }
+    });
+    rx
+}
+
+/// Receive chunks into `base` and commit to `store` whenever `commit_every` has passed with changes
+/// pending, until the input ends, the duration passes or `stop` is set; then commit what is left.
+pub fn pump<const D: usize>(
+    base: &mut BaseStation<D>,
+    mut store: Option<&mut dyn MapStore>,
+    chunks: &Receiver<std::io::Result<Vec<u8>>>,
+    options: &PumpOptions,
+) -> Result<Ending> {
+    let start = Instant::now();
+    let mut last_commit = Instant::now();
+    // How long to sleep at most: the stop flag is polled this often.
+    const POLL: Duration = Duration::from_millis(50);
+    let ending = loop {
+        if options.stop.load(Ordering::Relaxed) {
+            break Ending::Signal;
+        }
+        let now = Instant::now();
+        if options
+            .duration
+            .is_some_and(|d| now.duration_since(start) >= d)
+        {
+            break Ending::Deadline;
+        }
+        if let Some(s) = store.as_deref_mut() {
+            if base.has_changes() && now.duration_since(last_commit) >= options.commit_every {
+                base.commit(s).context("committing to the map database")?;
+                last_commit = now;
+            }
+        }
+        let mut wait = POLL;
+        if base.has_changes() {
+            wait = wait.min(
+                options
+                    .commit_every
+                    .saturating_sub(now.duration_since(last_commit)),
+            );
+        }
+        if let Some(d) = options.duration {
+            wait = wait.min(d.saturating_sub(now.duration_since(start)));
+        }
+        match chunks.recv_timeout(wait) {
+            Ok(Ok(bytes)) => base.receive(&bytes),
+            Ok(Err(e)) => {
+                // Keep what was received before the error.
+                if let Some(s) = store.as_deref_mut() {
+                    base.commit(s).context("committing to the map database")?;
+                }
+                return Err(e).context("reading the input");
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break Ending::EndOfInput,
+        }
+    };
+    if let Some(s) = store {
+        base.commit(s).context("committing to the map database")?;
+    }
+    Ok(ending)
+}
+
+/// The receiver's summary lines.
+fn print_summary<const D: usize>(base: &BaseStation<D>) {
+    let s = base.stats();
+    println!(
+        "frames accepted {}; summaries merged {}, live {}, ignored copies {}; frames lost {} (late {}); refused: CRC {}, COBS {}, short {}, overflow {}, version {}, malformed {}, wrong config {}, invalid voxel {}, duplicate {}, too old {}; at the codec's ceiling (clamped): mu scale {}, psi {}",
+        s.frames, s.merged, s.updated, s.ignored, s.lost, s.late,
+        s.decoder.crc_errors, s.decoder.cobs_errors, s.decoder.too_short, s.decoder.overflows,
+        s.rejected.version, s.rejected.malformed, s.rejected.wrong_config, s.rejected.invalid_voxel,
+        s.rejected.duplicate_frames, s.rejected.too_old, s.clamped_mean_scale, s.clamped_psi
+    );
+    print_sessions(base);
+}
+
+/// One line per `(robot, session)`: its sequence state over its whole life (across restarts).
+fn print_sessions<const D: usize>(base: &BaseStation<D>) {
+    for ((robot, session), st) in base.sessions() {
+        println!(
+            "robot {robot} session {session}: {} frames received, {} lost, {} late{}{}",
+            st.seq.received,
+            st.seq.lost,
+            st.seq.late,
+            st.seq
+                .highest()
+                .map_or(String::new(), |h| format!(", highest sequence number {h}")),
+            st.link.map_or(String::new(), |l| format!(
+                "; robot reports {} frames sent, {} evicted voxels, {} refused by its queue",
+                l.frames_sent, l.evicted_sent, l.refused
+            ))
+        );
+    }
+}
+
+/// Labels, pictures and the query of a map, as the output options ask.
+fn show(
+    map: &GlobalMap<DIM>,
+    out: &OutputArgs,
+    vocab: Option<&Vocab>,
+    query: Option<&Codebook<DIM, VOCAB_CAP>>,
+    top: usize,
+) -> Result<()> {
+    check_feature_space(out, vocab, map)?;
+    let empty =
+        Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
+    let cb = vocab.map_or(&empty, |v| &v.1);
+    if let Some(prefix) = &out.png {
+        for f in write_pngs(map, cb, query.map(|q| (q, 0)), prefix, out.scale)? {
+            println!("wrote {}", f.display());
+        }
+    }
+    if let Some(p) = &out.ply {
+        write_ply(map, cb, p)?;
+        println!("wrote {}", p.display());
+    }
+    if let Some((names, _, _)) = vocab {
+        let mut counts = vec![0usize; names.len()];
+        for k in map.sorted_keys() {
+            if let Some((l, _)) = map.label(&k, cb) {
+                counts[l] += 1;
+            }
+        }
+        for (n, c) in names.iter().zip(counts) {
+            println!("  {n}: {c} voxels");
+        }
+    }
+    if let (Some(q), Some(phrase)) = (query, &out.query) {
+        let voxel = map.map_config().voxel_size();
+        let mut scored: Vec<_> = map
+            .sorted_keys()
+            .into_iter()
+            .filter_map(|k| Some((map.heat(&k, q, 0)?, k)))
+            .collect();
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for (score, k) in scored.iter().take(top) {
+            let c = k.centroid(voxel);
+            println!(
+                "query \"{phrase}\": score {score:.3} at ({:.2}, {:.2}, {:.2}) m",
+                c[0], c[1], c[2]
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Run `host-sim base-station`.
 pub fn run(args: &BaseStationArgs) -> Result<()> {
     // Every option is checked before the first byte is read: a typo found at the end would lose a whole
     // serial session.
     if let Some(p) = &args.map {
         check_output("--map", p, false)?;
     }
-    if let Some(p) = &args.png {
-        check_output("--png", p, true)?;
-    }
-    if let Some(p) = &args.ply {
-        check_output("--ply", p, false)?;
-    }
-    let (vocab, query) = read_vocabulary(args)?;
-    let mut base = match &args.map {
-        Some(p) if p.exists() => {
-            let map = GlobalMap::<DIM>::load(p).map_err(|e| match e {
-                LoadError::Io { .. } => anyhow::Error::new(e), // names the file already
-                e => anyhow::anyhow!("{}: {e}", p.display()),
-            })?;
-            // A continued map knows the robots' feature space already: check the PCA now.
-            check_feature_space(args, vocab.as_ref(), &map)?;
-            println!("continuing {} ({} voxels)", p.display(), map.len());
-            BaseStation::from_map(map)
+    check_outputs(&args.out)?;
+    let (vocab, query) = read_vocabulary(&args.out)?;
+    let (mut store, mut base) = match &args.map {
+        Some(p) => {
+            let (store, base) = open_station(p)?;
+            if let Some(map) = base.map() {
+                // A continued map knows the robots' feature space already: check the PCA now.
+                check_feature_space(&args.out, vocab.as_ref(), map)?;
+                println!(
+                    "continuing {} ({} voxels, {} sessions)",
+                    p.display(),
+                    map.len(),
+                    base.sessions().len()
+                );
+            }
+            (Some(store), base)
         }
-        _ => BaseStation::<DIM>::adopting(),
+        None => (None, BaseStation::<DIM>::adopting()),
     };
-    let mut source: Box<dyn Read> = match (&args.serial, &args.input) {
+    let source: Box<dyn Read + Send> = match (&args.serial, &args.input) {
         (Some(port), _) => Box::new(
             serialport::new(port, args.baud)
                 .timeout(Duration::from_millis(200))
@@ -214,74 +466,98 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         }
         (None, None) => bail!("give an input file, `-` for stdin, or --serial PORT"),
     };
-    let start = Instant::now();
-    let deadline = args.duration;
-    let mut buf = [0u8; 4096];
-    loop {
-        if deadline.is_some_and(|d| start.elapsed() >= d) {
-            break;
-        }
-        match source.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => base.receive(&buf[..n]),
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
-                ) => {}
-            Err(e) => return Err(e).context("reading the input"),
-        }
+    // First signal: stop, commit, summarise. A second one while that runs: exit at once.
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 130, Arc::clone(&stop))?;
+        signal_hook::flag::register(sig, Arc::clone(&stop))?;
     }
-    let s = base.stats();
-    println!(
-        "frames accepted {}; summaries merged {}, live {}, ignored copies {}; frames lost {} (late {}); refused: CRC {}, COBS {}, short {}, overflow {}, version {}, malformed {}, wrong config {}, invalid voxel {}, duplicate {}",
-        s.frames, s.merged, s.updated, s.ignored, s.lost, s.late,
-        s.decoder.crc_errors, s.decoder.cobs_errors, s.decoder.too_short, s.decoder.overflows,
-        s.rejected.version, s.rejected.malformed, s.rejected.wrong_config, s.rejected.invalid_voxel, s.rejected.duplicate_frames
-    );
-    for ((robot, session), st) in base.sessions() {
-        println!(
-            "robot {robot} session {session}: {} frames received, {} lost{}",
-            st.seq.received,
-            st.seq.lost,
-            st.link.map_or(String::new(), |l| format!(
-                "; robot reports {} frames sent, {} evicted voxels, {} refused by its queue",
-                l.frames_sent, l.evicted_sent, l.refused
-            ))
-        );
+    let options = PumpOptions {
+        commit_every: Duration::from_millis(args.commit_ms),
+        duration: args.duration,
+        stop,
+    };
+    let chunks = spawn_reader(source);
+    let ending = pump(
+        &mut base,
+        store.as_mut().map(|s| s as &mut dyn MapStore),
+        &chunks,
+        &options,
+    )?;
+    if ending == Ending::Signal {
+        println!("stopped by a signal");
     }
+    print_summary(&base);
     let Some(map) = base.map() else {
         bail!("no session header with a {DIM}-dimensional configuration was received: nothing to keep");
     };
     println!("global map: {} voxels", map.len());
     if let Some(p) = &args.map {
-        map.save(p)
-            .with_context(|| format!("saving {}", p.display()))?;
-        println!("saved {}", p.display());
+        println!("committed to {}", p.display());
     }
-    check_feature_space(args, vocab.as_ref(), map)?;
-    let empty =
-        Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
-    let cb = vocab.as_ref().map_or(&empty, |v| &v.1);
-    if let Some(prefix) = &args.png {
-        for f in write_pngs(map, cb, query.as_ref().map(|q| (q, 0)), prefix, args.scale)? {
-            println!("wrote {}", f.display());
+    show(map, &args.out, vocab.as_ref(), query.as_ref(), 0)
+}
+
+/// Run `host-sim map-info`.
+pub fn map_info(args: &MapInfoArgs) -> Result<()> {
+    let mut store = SqliteStore::open_read_only(&args.db)?;
+    let snapshot = store.snapshot()?;
+    let committed = snapshot.committed_at_ms;
+    let base =
+        BaseStation::<DIM>::restore(snapshot).with_context(|| args.db.display().to_string())?;
+    println!(
+        "{}: map database schema {SCHEMA_VERSION}, voxel record {}, last commit {}",
+        args.db.display(),
+        super::global_map::VOXEL_RECORD_VERSION,
+        if committed == 0 {
+            "never".to_string()
+        } else {
+            format!("at unix time {:.3} s", committed as f64 / 1000.0)
         }
-    }
-    if let Some(p) = &args.ply {
-        write_ply(map, cb, p)?;
-        println!("wrote {}", p.display());
-    }
-    if let Some((names, _, _)) = &vocab {
-        let mut counts = vec![0usize; names.len()];
-        for k in map.sorted_keys() {
-            if let Some((l, _)) = map.label(&k, cb) {
-                counts[l] += 1;
-            }
-        }
-        for (n, c) in names.iter().zip(counts) {
-            println!("  {n}: {c} voxels");
-        }
-    }
+    );
+    let Some(map) = base.map() else {
+        println!("no session configuration yet: empty");
+        return Ok(());
+    };
+    let c = map.config();
+    println!(
+        "configuration: D = {}, voxel {} m, kernel length {} m, filter size {}, sub-voxel cells {}, prior λ₀ {} μ₀ {} Ψ₀ {}, codec {}-bit μ / {} Ψ blocks, feature space {:#010x}",
+        c.dim, c.voxel_size, c.kernel_length, c.filter_size, c.subvoxel_cells, c.prior_lambda,
+        c.prior_mean, c.prior_psi, c.codec.mean_bits, c.codec.psi_blocks, c.feature_space
+    );
+    let (live, closed) = map.voxels().fold((0usize, 0usize), |(l, c), (_, v)| {
+        (l + v.live.len(), c + v.closed.len())
+    });
+    println!(
+        "observed voxels {}; contributions closed {closed}, live {live}; points Σn = {:.0}",
+        map.len(),
+        map.observed_points()
+    );
+    let size = |suffix: &str| {
+        let mut p = args.db.clone().into_os_string();
+        p.push(suffix);
+        std::fs::metadata(p).map_or(0, |m| m.len())
+    };
+    println!(
+        "file {:.1} MiB (+ write-ahead log {:.1} MiB)",
+        size("") as f64 / (1 << 20) as f64,
+        size("-wal") as f64 / (1 << 20) as f64
+    );
+    print_sessions(&base);
     Ok(())
+}
+
+/// Run `host-sim map-query`.
+pub fn map_query(args: &MapQueryArgs) -> Result<()> {
+    check_outputs(&args.out)?;
+    let (vocab, query) = read_vocabulary(&args.out)?;
+    let base = read_map(&args.db)?;
+    let Some(map) = base.map() else {
+        bail!(
+            "{}: no session configuration yet: the map is empty",
+            args.db.display()
+        );
+    };
+    println!("{}: {} voxels", args.db.display(), map.len());
+    show(map, &args.out, vocab.as_ref(), query.as_ref(), args.top)
 }

@@ -52,6 +52,164 @@ pub struct GlobalVoxel<const D: usize> {
     pub live: Vec<LiveContribution<D>>,
 }
 
+/// Version of [`GlobalVoxel::to_record`]'s layout. Change it (and [`GlobalVoxel::from_record`]) whenever
+/// what a voxel stores changes: a database holding another version is refused with a clear error.
+pub const VOXEL_RECORD_VERSION: u8 = 2;
+
+/// Why a stored voxel record could not be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RecordError {
+    /// Another record layout.
+    #[error("voxel record version {0} is not supported (this build reads version {VOXEL_RECORD_VERSION})")]
+    Version(u8),
+    /// Too short, too long, or a count that does not fit.
+    #[error("voxel record of {len} bytes is malformed for D = {dim}")]
+    Malformed {
+        /// Record length.
+        len: usize,
+        /// This build's dimension.
+        dim: usize,
+    },
+    /// A statistic is not finite (or a count or scatter is negative).
+    #[error("voxel record holds non-finite or negative statistics")]
+    NotFinite,
+}
+
+/// Bytes of one serialized [`ObsStats`] (n, m, S as f32).
+const fn stats_len(d: usize) -> usize {
+    4 + 8 * d
+}
+/// Bytes of one serialized [`ContributionId`].
+const ID_LEN: usize = 10;
+
+impl<const D: usize> GlobalVoxel<D> {
+    /// The voxel as an opaque, versioned byte record (the unit the map's storage keeps per key): every f32
+    /// bit-exact and every list in memory order, so [`GlobalVoxel::from_record`] gives back an equal voxel.
+    ///
+    /// Layout (little-endian): version u8; settled n, m (D), S (D) as f32; closed count u32, then
+    /// (robot u16, session u32, residency u32) each; live count u32, then (id, seq u32, n, m, S) each.
+    pub fn to_record(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(
+            1 + stats_len(D)
+                + 8
+                + ID_LEN * self.closed.len()
+                + (ID_LEN + 4 + stats_len(D)) * self.live.len(),
+        );
+        out.push(VOXEL_RECORD_VERSION);
+        put_stats(&mut out, &self.settled);
+        out.extend_from_slice(&(self.closed.len() as u32).to_le_bytes());
+        for id in &self.closed {
+            put_id(&mut out, id);
+        }
+        out.extend_from_slice(&(self.live.len() as u32).to_le_bytes());
+        for c in &self.live {
+            put_id(&mut out, &c.id);
+            out.extend_from_slice(&c.seq.to_le_bytes());
+            put_stats(&mut out, &c.obs);
+        }
+        out
+    }
+
+    /// Read a record written by [`GlobalVoxel::to_record`]; refuse any other version, length or a
+    /// non-finite value.
+    pub fn from_record(bytes: &[u8]) -> Result<Self, RecordError> {
+        let malformed = RecordError::Malformed {
+            len: bytes.len(),
+            dim: D,
+        };
+        let (&version, rest) = bytes.split_first().ok_or(malformed.clone())?;
+        if version != VOXEL_RECORD_VERSION {
+            return Err(RecordError::Version(version));
+        }
+        let mut r = Cursor(rest);
+        let parse = |r: &mut Cursor<'_>| -> Option<Result<Self, RecordError>> {
+            let settled = r.stats::<D>()?;
+            let n = r.count(ID_LEN)?;
+            let mut closed = Vec::with_capacity(n);
+            for _ in 0..n {
+                closed.push(r.id()?);
+            }
+            let n = r.count(ID_LEN + 4 + stats_len(D))?;
+            let mut live = Vec::with_capacity(n);
+            for _ in 0..n {
+                let id = r.id()?;
+                let seq = r.u32()?;
+                live.push(LiveContribution {
+                    id,
+                    seq,
+                    obs: r.stats::<D>()?,
+                });
+            }
+            if !r.0.is_empty() {
+                return None;
+            }
+            let finite = settled.is_valid() && live.iter().all(|c| c.obs.is_valid());
+            Some(if finite {
+                Ok(GlobalVoxel {
+                    settled,
+                    closed,
+                    live,
+                })
+            } else {
+                Err(RecordError::NotFinite)
+            })
+        };
+        parse(&mut r).unwrap_or(Err(malformed))
+    }
+}
+
+fn put_stats<const D: usize>(out: &mut Vec<u8>, s: &ObsStats<D>) {
+    out.extend_from_slice(&s.count.to_le_bytes());
+    for v in s.mean.iter().chain(&s.scatter) {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+}
+
+fn put_id(out: &mut Vec<u8>, id: &ContributionId) {
+    out.extend_from_slice(&id.robot.to_le_bytes());
+    out.extend_from_slice(&id.session.to_le_bytes());
+    out.extend_from_slice(&id.residency.to_le_bytes());
+}
+
+/// Reads a record front to back; `None` when it ends early.
+struct Cursor<'a>(&'a [u8]);
+
+impl Cursor<'_> {
+    fn arr<const N: usize>(&mut self) -> Option<[u8; N]> {
+        let (head, rest) = self.0.split_first_chunk::<N>()?;
+        self.0 = rest;
+        Some(*head)
+    }
+    fn u32(&mut self) -> Option<u32> {
+        self.arr().map(u32::from_le_bytes)
+    }
+    fn f32(&mut self) -> Option<f32> {
+        self.arr().map(f32::from_le_bytes)
+    }
+    fn id(&mut self) -> Option<ContributionId> {
+        Some(ContributionId {
+            robot: u16::from_le_bytes(self.arr()?),
+            session: self.u32()?,
+            residency: self.u32()?,
+        })
+    }
+    fn stats<const D: usize>(&mut self) -> Option<ObsStats<D>> {
+        let mut s = ObsStats {
+            count: self.f32()?,
+            ..ObsStats::EMPTY
+        };
+        for v in s.mean.iter_mut().chain(s.scatter.iter_mut()) {
+            *v = self.f32()?;
+        }
+        Some(s)
+    }
+    /// A count of items of at least `item` bytes that the rest can hold.
+    fn count(&mut self, item: usize) -> Option<usize> {
+        let n = self.u32()? as usize;
+        (n.checked_mul(item)? <= self.0.len()).then_some(n)
+    }
+}
+
 /// What applying one summary did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Applied {
@@ -152,7 +310,7 @@ impl<const D: usize> GlobalMap<D> {
     }
 
     /// Insert a voxel as stored (for loading a saved map).
-    pub(crate) fn insert_raw(&mut self, key: VoxelKey, voxel: GlobalVoxel<D>) {
+    pub fn insert_raw(&mut self, key: VoxelKey, voxel: GlobalVoxel<D>) {
         self.voxels.insert(key, voxel);
     }
 
@@ -328,7 +486,42 @@ mod tests {
                 mean: [m; D],
                 scatter: [1.0 + count; D],
             },
+            at_ceiling: Default::default(),
         }
+    }
+
+    #[test]
+    fn voxel_records_round_trip_and_refuse_damage() {
+        let mut g = map();
+        g.apply(1, 1, 10, &summary(5, false, 1.0, 0.1));
+        g.apply(1, 1, 11, &summary(6, true, 2.0, 0.3));
+        g.apply(2, 7, 3, &summary(9, true, 1.5, -0.2));
+        let v = g.voxel(&VoxelKey::new(1, 2, 3)).unwrap();
+        let rec = v.to_record();
+        assert_eq!(GlobalVoxel::<D>::from_record(&rec).unwrap(), *v);
+        for cut in 0..rec.len() {
+            assert!(
+                GlobalVoxel::<D>::from_record(&rec[..cut]).is_err(),
+                "cut {cut}"
+            );
+        }
+        let mut longer = rec.clone();
+        longer.push(0);
+        assert!(GlobalVoxel::<D>::from_record(&longer).is_err());
+        let mut other = rec.clone();
+        other[0] = VOXEL_RECORD_VERSION + 1;
+        assert_eq!(
+            GlobalVoxel::<D>::from_record(&other),
+            Err(RecordError::Version(VOXEL_RECORD_VERSION + 1))
+        );
+        let mut nan = rec.clone();
+        nan[1..5].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(
+            GlobalVoxel::<D>::from_record(&nan),
+            Err(RecordError::NotFinite)
+        );
+        // A record of another dimension is refused, not misread.
+        assert!(GlobalVoxel::<8>::from_record(&rec).is_err());
     }
 
     #[test]

@@ -5,18 +5,25 @@
 //! ([`latentbki::wire::parse_body`]), configuration id, sequence number per `(robot, session)`
 //! ([`latentbki::frame::SeqTracker`]) and every summary in it — and is applied to the [`GlobalMap`] only if
 //! all of it passes; every refusal is counted by reason, every gap in sequence numbers is counted as lost.
-//! Saving, loading, queries and exports live in the submodules.
+//! What changed since the last commit (voxels touched, sessions whose frames touched them) is tracked so
+//! that [`BaseStation::changes`] hands a [`store::MapStore`] exactly that, at frame boundaries only: a
+//! frame's summaries and the sequence state that marks it merged are always in the same change set.
+//! Storage, queries and exports live in the submodules.
 
 pub mod cli;
 pub mod export;
-pub mod file;
 pub mod global_map;
+pub mod store;
 
-pub use global_map::{Applied, ContributionId, GlobalMap, GlobalVoxel, Uncertainty, VOCAB_CAP};
+pub use global_map::{
+    Applied, ContributionId, GlobalMap, GlobalVoxel, RecordError, Uncertainty, VOCAB_CAP,
+};
 
 use latentbki::frame::{DecoderStats, Feed, FrameDecoder, SeqTracker, SeqVerdict};
 use latentbki::wire::{parse_body, LinkStats, Message, SessionConfig, Summary, WireError};
-use std::collections::BTreeMap;
+use latentbki::VoxelKey;
+use std::collections::{BTreeMap, HashSet};
+use store::{Changes, MapStore, Snapshot, StoreError};
 
 /// Largest encoded frame the base station accepts (bytes between delimiters).
 pub const MAX_FRAME: usize = 4096;
@@ -57,10 +64,16 @@ pub struct ReceiveStats {
     pub lost: u32,
     /// Frames that arrived late (after a newer one) and were still used.
     pub late: u32,
+    /// Applied summaries whose μ scale was at the codec's ceiling (clamped at ≈ 6.0e4, or within 1/8
+    /// octave below it).
+    pub clamped_mean_scale: u32,
+    /// Applied summaries whose largest Ψ was at the codec's ceiling (clamped at ≈ 9.6e5, or within 1/8
+    /// octave below it).
+    pub clamped_psi: u32,
 }
 
 /// What the base station knows about one `(robot, session)`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct SessionState {
     /// Its sequence numbers.
     pub seq: SeqTracker,
@@ -68,6 +81,52 @@ pub struct SessionState {
     pub header_seen: bool,
     /// The last link statistics it reported.
     pub link: Option<LinkStats>,
+}
+
+/// Version of [`SessionState::to_record`]'s layout.
+pub const SESSION_RECORD_VERSION: u8 = 1;
+
+impl SessionState {
+    /// The session's state as a versioned byte record (version byte, then postcard).
+    pub fn to_record(&self) -> Vec<u8> {
+        let mut out = vec![SESSION_RECORD_VERSION];
+        out.extend(postcard::to_stdvec(self).expect("a session state serializes"));
+        out
+    }
+    /// Read a record written by [`SessionState::to_record`].
+    pub fn from_record(bytes: &[u8]) -> Result<Self, RestoreError> {
+        match bytes.split_first() {
+            Some((&SESSION_RECORD_VERSION, rest)) => match postcard::take_from_bytes(rest) {
+                Ok((s, [])) => Ok(s),
+                _ => Err(RestoreError::Invalid("a session record is malformed".into())),
+            },
+            Some((v, _)) => Err(RestoreError::Invalid(format!(
+                "session record version {v} is not supported (this build reads version {SESSION_RECORD_VERSION})"
+            ))),
+            None => Err(RestoreError::Invalid("an empty session record".into())),
+        }
+    }
+}
+
+/// Why a stored map could not be restored.
+#[derive(Debug, thiserror::Error)]
+pub enum RestoreError {
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The stored map is for another feature dimension.
+    #[error(
+        "the map database holds {found}-dimensional voxels; this build is {expected}-dimensional"
+    )]
+    Dimension {
+        /// Stored.
+        found: u32,
+        /// This build's D.
+        expected: usize,
+    },
+    /// A record could not be read.
+    #[error("map database invalid: {0}")]
+    Invalid(String),
 }
 
 /// One accepted frame, for audits (enabled with [`BaseStation::keep_journal`]).
@@ -91,6 +150,10 @@ pub struct BaseStation<const D: usize> {
     sessions: BTreeMap<(u16, u32), SessionState>,
     stats: ReceiveStats,
     journal: Option<Vec<JournalEntry>>,
+    /// Changed since the last commit.
+    dirty_voxels: HashSet<VoxelKey>,
+    dirty_sessions: HashSet<(u16, u32)>,
+    config_dirty: bool,
 }
 
 impl<const D: usize> BaseStation<D> {
@@ -112,6 +175,11 @@ impl<const D: usize> BaseStation<D> {
     }
 
     fn with(expected: Option<SessionConfig>, map: Option<GlobalMap<D>>) -> Self {
+        // A map handed in is new to any store: all of it is a change.
+        let config_dirty = map.is_some();
+        let dirty_voxels = map
+            .as_ref()
+            .map_or_else(HashSet::new, |m| m.voxels().map(|(k, _)| *k).collect());
         Self {
             decoder: Box::new(FrameDecoder::new()),
             expected,
@@ -119,7 +187,103 @@ impl<const D: usize> BaseStation<D> {
             sessions: BTreeMap::new(),
             stats: ReceiveStats::default(),
             journal: None,
+            dirty_voxels,
+            dirty_sessions: HashSet::new(),
+            config_dirty,
         }
+    }
+
+    /// Continue the map a store holds (sessions and their sequence state included); an empty store gives
+    /// a base station that adopts the first valid session header's configuration.
+    pub fn restore(snapshot: Snapshot) -> Result<Self, RestoreError> {
+        let Some(bytes) = &snapshot.config else {
+            if let Some(found) = snapshot.dim.filter(|&d| d as usize != D) {
+                return Err(RestoreError::Dimension { found, expected: D });
+            }
+            return Ok(Self::adopting());
+        };
+        let dim = snapshot.dim.unwrap_or(0);
+        if dim as usize != D {
+            return Err(RestoreError::Dimension {
+                found: dim,
+                expected: D,
+            });
+        }
+        let config: SessionConfig = postcard::from_bytes(bytes)
+            .map_err(|e| RestoreError::Invalid(format!("session configuration: {e}")))?;
+        let mut map = GlobalMap::new(config)
+            .map_err(|e| RestoreError::Invalid(format!("session configuration: {e:?}")))?;
+        for (key, rec) in &snapshot.voxels {
+            if !key.in_range() {
+                return Err(RestoreError::Invalid(format!(
+                    "voxel key {key:?} out of range"
+                )));
+            }
+            let v = GlobalVoxel::from_record(rec)
+                .map_err(|e| RestoreError::Invalid(format!("voxel {key:?}: {e}")))?;
+            map.insert_raw(*key, v);
+        }
+        let mut base = Self::with(Some(config), Some(map));
+        base.committed(); // as stored
+        for (id, rec) in &snapshot.sessions {
+            base.sessions.insert(*id, SessionState::from_record(rec)?);
+        }
+        Ok(base)
+    }
+
+    /// Open a store and continue its map.
+    pub fn open(store: &mut dyn MapStore) -> Result<Self, RestoreError> {
+        Self::restore(store.snapshot()?)
+    }
+
+    /// Everything changed since the last [`BaseStation::committed`], at a frame boundary.
+    pub fn changes(&self) -> Changes {
+        let config = match (&self.map, self.config_dirty) {
+            (Some(m), true) => Some((
+                D as u32,
+                postcard::to_stdvec(m.config()).expect("a session config serializes"),
+            )),
+            _ => None,
+        };
+        let voxels = match &self.map {
+            Some(m) => self
+                .dirty_voxels
+                .iter()
+                .filter_map(|k| Some((*k, m.voxel(k)?.to_record())))
+                .collect(),
+            None => Vec::new(),
+        };
+        let sessions = self
+            .dirty_sessions
+            .iter()
+            .filter_map(|id| Some((*id, self.sessions.get(id)?.to_record())))
+            .collect();
+        Changes {
+            config,
+            voxels,
+            sessions,
+        }
+    }
+
+    /// Whether anything changed since the last commit.
+    pub fn has_changes(&self) -> bool {
+        self.config_dirty || !self.dirty_voxels.is_empty() || !self.dirty_sessions.is_empty()
+    }
+
+    /// The last [`BaseStation::changes`] are stored: start tracking afresh.
+    pub fn committed(&mut self) {
+        self.config_dirty = false;
+        self.dirty_voxels.clear();
+        self.dirty_sessions.clear();
+    }
+
+    /// Write the changes since the last commit to `store` in one transaction.
+    pub fn commit(&mut self, store: &mut dyn MapStore) -> Result<(), StoreError> {
+        if self.has_changes() {
+            store.commit(&self.changes())?;
+            self.committed();
+        }
+        Ok(())
     }
 
     /// Keep a copy of every accepted frame body (tests audit them against what was sent).
@@ -188,6 +352,7 @@ impl<const D: usize> BaseStation<D> {
                     if let Ok(map) = GlobalMap::new(c) {
                         self.expected = Some(c);
                         self.map = Some(map);
+                        self.config_dirty = true;
                     }
                 }
             }
@@ -221,6 +386,8 @@ impl<const D: usize> BaseStation<D> {
             .sessions
             .entry((header.robot, header.session))
             .or_default();
+        // Every verdict changes the tracker's counters: the session is a change either way.
+        self.dirty_sessions.insert((header.robot, header.session));
         match state.seq.accept(header.seq) {
             SeqVerdict::New | SeqVerdict::Late => {}
             SeqVerdict::Duplicate => {
@@ -251,8 +418,14 @@ impl<const D: usize> BaseStation<D> {
             match map.apply(header.robot, header.session, header.seq, s) {
                 Applied::Merged => self.stats.merged += 1,
                 Applied::Updated => self.stats.updated += 1,
-                Applied::Stale | Applied::DuplicateFinal => self.stats.ignored += 1,
+                Applied::Stale | Applied::DuplicateFinal => {
+                    self.stats.ignored += 1;
+                    continue;
+                }
             }
+            self.dirty_voxels.insert(s.key);
+            self.stats.clamped_mean_scale += u32::from(s.at_ceiling.mean_scale);
+            self.stats.clamped_psi += u32::from(s.at_ceiling.psi);
         }
     }
 }
