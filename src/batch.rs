@@ -4,13 +4,12 @@
 //! 1. [`locate`] each map-frame point (both maps): reject non-finite or out-of-range input (counted, never
 //!    stored) and find its voxel and sub-cell. Points with the same voxel and sub-cell have identical
 //!    kernel weights to every neighbour, so they are grouped.
-//! 2. Spread each group to the neighbours in the kernel table: target voxel t receives the group scaled by
-//!    k(s → t). The f32 reference map groups into Welford moments ([`crate::VoxelStats::absorb_point`]) and uses
-//!    [`spread`]; the on-device map groups raw sums ([`crate::BatchSums`], no division per point) and asks
-//!    [`KernelLut::weight_at`] per target. Both are exactly the paper's per-point batch sums (Chan's
-//!    combination; the equivalence tests check it).
-//!
-//! Grouping turns "points × f³" into "occupied voxels × f³", the main saving on dense scans.
+//! 2. Either spread each group to the neighbours in the kernel table — target voxel t receives the group
+//!    scaled by k(s → t): the host's reference map does this with Welford moments
+//!    ([`crate::VoxelStats::absorb_point`]) and [`spread`], the paper's update taken literally — or keep
+//!    each voxel's own observation statistics and gather them through the kernel when a posterior is asked
+//!    ([`crate::obs`]: the on-device map and the host's fast map). Both are exactly the paper's per-point
+//!    batch sums (Chan's combination; the equivalence tests check it).
 
 use crate::kernel::KernelLut;
 use crate::key::{KeyError, VoxelKey};

@@ -46,7 +46,7 @@ pub use local_map::LocalMap;
 pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
 pub use quant::packed_len;
 pub use sink::{Evicted, EvictionSink, SinkFull};
-pub use stats::{BatchSums, VoxelStats};
+pub use stats::VoxelStats;
 pub use wire::{SessionConfig, SummaryCodec};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.

@@ -508,7 +508,7 @@ pub const MAX_COUNT: u32 = 1 << 24;
 /// The count as the wire carries it, if it is a whole number in 1..=[`MAX_COUNT`].
 pub fn wire_count(count: f32) -> Option<u32> {
     let n = count as u32; // saturating; NaN → 0
-    (n >= 1 && n <= MAX_COUNT && n as f32 == count).then_some(n)
+    ((1..=MAX_COUNT).contains(&n) && n as f32 == count).then_some(n)
 }
 
 /// Write the quantized part (mean scale, mean codes, scatter) of observation statistics into

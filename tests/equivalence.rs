@@ -1,10 +1,11 @@
-//! Batch = streaming = merge = grouped spread = raw sums, in f32, against an f64 evaluation of the paper's equations.
+//! Batch = streaming = merge = grouped spread = per-voxel observation statistics gathered, in f32, against an
+//! f64 evaluation of the paper's equations.
 //!
 //! Tolerance: |f32 − f64| ≤ 1e-5 · (|f64| + scale), where scale is the magnitude of the inputs that enter the
 //! quantity (max |y| for μ, Σ k·y² for Ψ). A pure relative bound is meaningless where an exact result is 0
 //! by cancellation, so the input magnitude anchors it.
 
-use latentbki::{BatchSums, Prior, VoxelStats};
+use latentbki::{ObsStats, Prior, VoxelStats};
 use proptest::prelude::*;
 
 const D: usize = 16;
@@ -157,22 +158,17 @@ proptest! {
         let exact_g = oracle(&prior, std::slice::from_ref(&regrouped));
         assert_close("grouped", &g, &exact_g, &regrouped, &prior);
 
-        // (e) raw sums, as the on-device map applies a batch: groups of unit-weight points as raw sums,
-        // each added to the target's batch through its kernel weight, then one update.
-        let mut target_batch = BatchSums::<D>::EMPTY;
+        // (e) observation statistics, as the maps keep them: each group of unit-weight points is one
+        // voxel's (n, m, S) (Welford), gathered through its kernel weight (Chan), then the posterior.
+        let mut gathered = ObsStats::<D>::EMPTY;
         for chunk in all.chunks(3) {
-            let mut group = BatchSums::<D>::EMPTY;
-            for (_, y) in chunk { group.add_point(&f32s(y)); }
-            target_batch.add_scaled(chunk[0].0 as f32, &group);
+            let mut voxel = ObsStats::<D>::EMPTY;
+            for (_, y) in chunk { voxel.add_point(&f32s(y)); }
+            gathered.merge_scaled(chunk[0].0 as f32, &voxel);
         }
         let mut e = start;
-        e.absorb_sums(&target_batch);
-        assert_close("raw sums", &e, &exact_g, &regrouped, &prior);
-        assert_close("raw sums as moments", &{
-            let mut m = start;
-            m.absorb(&target_batch.moments());
-            m
-        }, &exact_g, &regrouped, &prior);
+        e.absorb_observations(1.0, &gathered);
+        assert_close("gathered observations", &e, &exact_g, &regrouped, &prior);
     }
 }
 

@@ -285,7 +285,7 @@ fn posteriors_gather_through_the_kernel() {
             worst_mu = worst_mu.max(err / norm);
         }
     }
-    for (k, _) in &exact {
+    for k in exact.keys() {
         for o in lut.offsets() {
             let t = k.offset(*o);
             let first = lut

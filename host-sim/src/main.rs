@@ -124,14 +124,14 @@ struct IntegrateArgs {
 /// The map `integrate` builds: per-voxel observation statistics gathered on output (voxel-offset kernel),
 /// or the literal paper update for the sub-voxel kernel, which per-voxel statistics cannot express.
 enum IntegrateMap<const D: usize> {
-    Observations(ObsMap<D>),
+    Observations(Box<ObsMap<D>>),
     Reference(ReferenceMap<D>),
 }
 
 impl<const D: usize> IntegrateMap<D> {
     fn new(config: MapConfig) -> Result<Self> {
         Ok(match config.mode() {
-            KernelMode::VoxelOffset => Self::Observations(ObsMap::new(config)?),
+            KernelMode::VoxelOffset => Self::Observations(Box::new(ObsMap::new(config)?)),
             KernelMode::SubVoxel { .. } => Self::Reference(ReferenceMap::new(config)?),
         })
     }
