@@ -8,7 +8,7 @@ use host_sim::base_station::store::SqliteStore;
 use host_sim::base_station::BaseStation;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 
@@ -48,15 +48,16 @@ fuzz_target!(|data: &[u8]| {
         let key = VoxelKey::new(i32::from(c[0] % 4), i32::from(c[1] % 4), i32::from(c[2] % 2));
         let residency = u32::from(c[3] % 8);
         let v = &c[4..];
-        let stats = VoxelStats::<D> {
-            lambda: f(v),
+        // Any bits for the count (mostly not a whole number in 1..=2^24: the encoder must drop those).
+        let stats = ObsStats::<D> {
+            count: f(v),
             mean: core::array::from_fn(|d| f(&v[4 + 4 * d..])),
-            psi: core::array::from_fn(|d| f(&v[4 + 4 * D + 4 * d..]).abs()),
+            scatter: core::array::from_fn(|d| f(&v[4 + 4 * D + 4 * d..]).abs()),
         };
         if enc
             .evict(Evicted {
                 key,
-                stats: &stats,
+                obs: &stats,
                 residency,
             })
             .is_err()

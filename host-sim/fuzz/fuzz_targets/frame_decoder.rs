@@ -31,8 +31,8 @@ fuzz_target!(|data: &[u8]| {
                                 if let Ok(s) = s {
                                     assert!(
                                         s.key.in_range()
-                                            && s.stats.lambda > 0.0
-                                            && s.stats.is_finite()
+                                            && s.obs.count >= 1.0
+                                            && s.obs.is_valid()
                                     );
                                 }
                             }

@@ -41,5 +41,5 @@ fuzz_target!(|data: &[u8]| {
         let n = map.integrate(&pose, &pts, &feats, &mut sink);
         assert_eq!(n + (map.rejections().total() - before) as usize, pts.len());
     }
-    assert!(map.iter().all(|v| v.stats.is_finite()));
+    assert!(map.iter().all(|v| v.obs.is_valid()));
 });

@@ -4,7 +4,7 @@
 
 use latentbki::frame::{EncoderSettings, Feed, FrameDecoder};
 use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, VoxelKey, VoxelStats};
+use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
 use libfuzzer_sys::fuzz_target;
 
 const D: usize = 8;
@@ -44,16 +44,17 @@ fuzz_target!(|data: &[u8]| {
             i32::from_le_bytes([c[8], c[9], c[10], c[11]]) >> 2,
         );
         let v = &c[12..];
-        let stats = VoxelStats::<D> {
-            lambda: f(v),
+        // Any bits for the count (mostly not a whole number in 1..=2^24: the encoder must drop those).
+        let stats = ObsStats::<D> {
+            count: f(v),
             mean: core::array::from_fn(|d| f(&v[4 + 4 * d..])),
-            psi: core::array::from_fn(|d| f(&v[4 + 4 * D + 4 * d..]).abs()),
+            scatter: core::array::from_fn(|d| f(&v[4 + 4 * D + 4 * d..]).abs()),
         };
-        let ok = stats.is_finite() && stats.lambda > 0.0;
+        let ok = stats.is_valid() && latentbki::wire::wire_count(stats.count).is_some();
         if enc
             .evict(Evicted {
                 key,
-                stats: &stats,
+                obs: &stats,
                 residency: i as u32,
             })
             .is_err()
@@ -62,7 +63,7 @@ fuzz_target!(|data: &[u8]| {
             continue;
         }
         if ok {
-            sent.push((key, i as u32, stats.lambda));
+            sent.push((key, i as u32, stats.count));
         }
     }
     while enc.queued() > 0 {
@@ -79,7 +80,7 @@ fuzz_target!(|data: &[u8]| {
                 if let (_, Message::Voxels(b)) = parse_body(body).unwrap() {
                     for s in b.iter::<D>(codec) {
                         let s = s.unwrap();
-                        got.push((s.key, s.residency, s.stats.lambda));
+                        got.push((s.key, s.residency, s.obs.count));
                     }
                 }
                 input = rest;
