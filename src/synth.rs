@@ -503,8 +503,9 @@ pub const SELF_TEST_QUEUE_BYTES: usize = 4096;
 pub const SELF_TEST_FRAME_BYTES: usize = 512;
 
 /// The firmware self-test: the 8×8 ToF for three turns (f = 1), then 4,096-point depth frames at f = 1
-/// and f = 3 (the instruction-count benchmark).
-pub const SELF_TEST: [Scenario; 3] = [
+/// and f = 3 (the instruction-count benchmark), then half a turn of depth frames with a window that holds
+/// the whole room (f = 3): the map fills, so the run measures how many voxels a full map answers.
+pub const SELF_TEST: [Scenario; 4] = [
     Scenario {
         scene: Scene::new(DepthSensor::TOF_8X8, 0x70F),
         frames: 144,
@@ -527,6 +528,14 @@ pub const SELF_TEST: [Scenario; 3] = [
         filter_size: 3,
         window_radius: 2.5,
         session: 3,
+        tick_budget: 8192,
+    },
+    Scenario {
+        scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD4),
+        frames: 24,
+        filter_size: 3,
+        window_radius: 4.0,
+        session: 4,
         tick_budget: 8192,
     },
 ];
