@@ -3,6 +3,7 @@
 #![forbid(unsafe_code)]
 
 pub mod base_station;
+pub mod cli_args;
 pub mod demo_link;
 pub mod eval;
 pub mod link;

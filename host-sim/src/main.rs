@@ -2,10 +2,11 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use host_sim::cli_args::MapArgs;
 use host_sim::npy_io::{read_frame, read_poses, write_map_npz, Frame};
 use host_sim::ReferenceMap;
 use latentbki::nalgebra::Isometry3;
-use latentbki::{KernelMode, MapConfig, Prior};
+use latentbki::MapConfig;
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -46,51 +47,6 @@ struct EmbedVocabArgs {
     out: PathBuf,
     /// Phrases to embed (default: every phrase of the committed table, in order).
     phrases: Vec<String>,
-}
-
-/// The map configuration, shared by every command that builds a map.
-#[derive(Args, Debug, Clone)]
-struct MapArgs {
-    /// Voxel edge length in metres.
-    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
-    voxel_size: f32,
-    /// Kernel length ℓ in metres.
-    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
-    kernel_length: f32,
-    /// Filter size f (odd, 1..=7): a point updates f³ voxels.
-    #[arg(long, default_value_t = 3)]
-    filter_size: u8,
-    /// Prior confidence λ₀.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    prior_lambda: f32,
-    /// Prior mean μ₀ (every dimension).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    prior_mean: f32,
-    /// Prior scatter Ψ₀ (every dimension).
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
-    prior_psi: f32,
-    /// Sub-voxel kernel: cells per axis for the point's position inside its voxel (0 = voxel-offset kernel).
-    #[arg(long, default_value_t = 0)]
-    subvoxel_cells: u8,
-}
-
-impl MapArgs {
-    fn config(&self) -> Result<MapConfig> {
-        let prior = Prior {
-            lambda: self.prior_lambda,
-            mean: self.prior_mean,
-            psi: self.prior_psi,
-        };
-        let mode = KernelMode::from_subvoxel_cells(self.subvoxel_cells);
-        MapConfig::new(
-            self.voxel_size,
-            self.kernel_length,
-            self.filter_size,
-            prior,
-            mode,
-        )
-        .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
-    }
 }
 
 #[derive(Args, Debug)]
@@ -179,7 +135,7 @@ fn main() -> Result<()> {
         Command::Demo(args) => {
             // The robot's evictions cross a faulty serial link (byte error rate 1e-4) to a base station.
             let link =
-                host_sim::demo_link::DemoLink::new(&latentbki::MapConfig::default(), 1e-4, 7)?;
+                host_sim::demo_link::DemoLink::new(&args.map.config()?, 1e-4, 7)?;
             let sink = host_sim::demo_link::DemoLinkSink(link.clone());
             host_sim::eval::cli::demo(&args, Some(Box::new(sink)))?;
             let mut link = link
