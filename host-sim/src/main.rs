@@ -45,7 +45,8 @@ struct EmbedVocabArgs {
     /// Output table.
     #[arg(long, default_value = "host-sim/data/text-embeddings.tsv")]
     out: PathBuf,
-    /// Phrases to embed (default: every phrase of the committed table, in order).
+    /// Phrases to embed (default: every phrase of the committed table, in order, then the ASPRS class
+    /// names it lacks).
     phrases: Vec<String>,
 }
 
@@ -150,7 +151,14 @@ fn main() -> Result<()> {
         #[cfg(feature = "encoder")]
         Command::EmbedVocab(args) => {
             let phrases = if args.phrases.is_empty() {
-                host_sim::sim::vocab::Vocabulary::builtin().phrases()
+                // The committed phrases in their order, then any ASPRS class name the table lacks.
+                let mut phrases = host_sim::sim::vocab::Vocabulary::builtin().phrases();
+                for p in host_sim::sim::tile::asprs_phrases() {
+                    if !phrases.iter().any(|q| q == p) {
+                        phrases.push(p.to_string());
+                    }
+                }
+                phrases
             } else {
                 args.phrases.clone()
             };

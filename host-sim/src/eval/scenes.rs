@@ -236,14 +236,20 @@ impl SceneSource {
         match (self.scene, &self.tile) {
             (Scene::Tile, Some(t)) => {
                 let (lo, hi) = t.bounds;
+                let (range, altitude) = self.tile_flight;
+                let advice = if altitude >= range {
+                    "lower --altitude below the range, or raise --range"
+                } else {
+                    "raise --range, --points or --frames"
+                };
                 bail!(
-                    "too sparse: the robot's LiDAR saw {seen} points in {frames} frames over {} ({:.0} × {:.0} m, {:.1} points/m², range {:.1} m, flying {:.1} m above the ground), and the {}-component feature PCA needs at least {need}: raise --range, --points or --frames",
+                    "too sparse: the robot's LiDAR saw {seen} points in {frames} frames over {} ({:.0} × {:.0} m, {:.1} points/m², range {:.1} m, flying {:.1} m above the ground), and the {}-component feature PCA needs at least {need}: {advice}",
                     self.title(),
                     hi[0] - lo[0],
                     hi[1] - lo[1],
                     t.points.len() as f32 / t.area().max(1e-6),
-                    self.tile_flight.0,
-                    self.tile_flight.1,
+                    range,
+                    altitude,
                     super::methods::D,
                 )
             }

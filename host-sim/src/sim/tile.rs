@@ -551,32 +551,33 @@ pub fn scaled_sensor(tile: &Tile, points_per_frame: usize) -> (f32, f32) {
 }
 
 /// Terrain following: the robot flies `altitude` above the lowest terrain point and leaves that height
-/// only where the local ground (the 10th percentile of the terrain points in the 3 × 3 cells of
-/// `cell` metres around it) would bring it closer than `altitude / 2` or farther than `3 · altitude / 2`:
-/// it then holds the nearest edge of that band. A deadband, as terrain-following autopilots use, so it does
+/// only where the local ground (the median height of the terrain points within `altitude` of it,
+/// horizontally; within the 3 × 3 cells of that size around it if there are none that close) would bring
+/// it closer than `altitude / 2` or farther than `3 · altitude / 2`: it then holds the nearest edge of that
+/// band. A deadband, as terrain-following autopilots use, so it does
 /// not chase every bump: on a flat tile (the committed one: its ground spans 0.43 m) it flies level, and on
 /// relief it stays between half and one and a half times its altitude above the ground beneath it.
 pub struct TerrainFollowing {
     cell: f32,
     lo: [f32; 2],
-    cells: HashMap<(i32, i32), Vec<f32>>,
+    cells: HashMap<(i32, i32), Vec<[f32; 3]>>,
     floor: f32,
     altitude: f32,
 }
 
 impl TerrainFollowing {
-    /// The terrain of `tile`, sampled in cells of `cell` metres.
-    pub fn new(tile: &Tile, cell: f32, altitude: f32) -> Self {
-        let cell = cell.max(1e-3);
+    /// The terrain of `tile` for a flight `altitude` above it.
+    pub fn new(tile: &Tile, altitude: f32) -> Self {
+        let cell = altitude.max(0.05);
         let lo = [tile.bounds.0[0], tile.bounds.0[1]];
-        let mut cells: HashMap<(i32, i32), Vec<f32>> = HashMap::new();
+        let mut cells: HashMap<(i32, i32), Vec<[f32; 3]>> = HashMap::new();
         let terrain = tile.terrain_points();
         for p in &terrain {
             let k = (
                 ((p[0] - lo[0]) / cell).floor() as i32,
                 ((p[1] - lo[1]) / cell).floor() as i32,
             );
-            cells.entry(k).or_default().push(p[2]);
+            cells.entry(k).or_default().push(*p);
         }
         let floor = terrain.iter().map(|p| p[2]).fold(f32::INFINITY, f32::min);
         Self {
@@ -594,16 +595,25 @@ impl TerrainFollowing {
             ((x - self.lo[0]) / self.cell).floor() as i32,
             ((y - self.lo[1]) / self.cell).floor() as i32,
         );
-        let mut z: Vec<f32> = (-1..=1)
+        let near: Vec<[f32; 3]> = (-1..=1)
             .flat_map(|dx| (-1..=1).map(move |dy| (cx + dx, cy + dy)))
             .filter_map(|k| self.cells.get(&k))
             .flatten()
             .copied()
             .collect();
+        let r2 = self.cell * self.cell;
+        let mut z: Vec<f32> = near
+            .iter()
+            .filter(|p| (p[0] - x).powi(2) + (p[1] - y).powi(2) <= r2)
+            .map(|p| p[2])
+            .collect();
+        if z.is_empty() {
+            z = near.iter().map(|p| p[2]).collect();
+        }
         if z.is_empty() {
             return None;
         }
-        let k = z.len() / 10;
+        let k = z.len() / 2;
         z.select_nth_unstable_by(k, f32::total_cmp);
         Some(z[k])
     }
@@ -656,7 +666,7 @@ pub fn sequence(tile: &Tile, run: &TileRun) -> Sequence {
     let (lo, hi) = tile.bounds;
     let centre = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
     let radii = [(hi[0] - lo[0]) * 0.3, (hi[1] - lo[1]) * 0.3];
-    let terrain = TerrainFollowing::new(tile, run.lidar.range_m / 2.0, run.altitude);
+    let terrain = TerrainFollowing::new(tile, run.altitude);
     let z = tile.ground_height() + run.altitude;
     let n = run.frames.max(1);
     let loop_poses = ellipse(centre, radii, z, n * 8);
@@ -712,6 +722,11 @@ mod tests {
         assert_eq!(class_phrase(64), "class 64");
         assert_eq!(class_phrase(255), "class 255");
         assert_eq!(asprs_phrases().len(), 22);
+        // The committed table embeds every one of them.
+        let vocab = super::super::vocab::Vocabulary::builtin();
+        for p in asprs_phrases() {
+            vocab.get(p).unwrap();
+        }
     }
 
     #[test]
