@@ -1,8 +1,8 @@
 //! Option groups that several commands share (one definition each, flattened into the commands).
 
+use crate::sim::tile::LengthUnit;
 use anyhow::Result;
 use clap::Args;
-use crate::sim::tile::LengthUnit;
 use latentbki::{KernelMode, MapConfig, Prior};
 use std::path::PathBuf;
 
@@ -51,7 +51,6 @@ impl MapArgs {
         .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
     }
 }
-
 
 impl Default for MapArgs {
     /// The command-line defaults (the paper's outdoor configuration).

@@ -20,7 +20,8 @@ fn committed_tile() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/file_with_both_wkt_and_geotiff_vlrs.las")
 }
 
-/// Write `points` (x, y, z in metres, ASPRS code) as a LAS 1.4 point format 6 file; `.laz` compresses.
+/// Write `points` (x, y, z in the CRS's units, ASPRS code) as a LAS 1.4 point format 6 file at 0.001
+/// resolution; `.laz` compresses.
 fn write_las(path: &Path, points: &[(f64, f64, f64, u8)], wkt: Option<&str>) {
     let mut b = las::Builder::from((1, 4));
     b.point_format = las::point::Format::new(6).unwrap();
@@ -28,10 +29,13 @@ fn write_las(path: &Path, points: &[(f64, f64, f64, u8)], wkt: Option<&str>) {
         scale: 0.001,
         offset,
     };
+    let floor = |f: fn(&(f64, f64, f64, u8)) -> f64| {
+        points.iter().map(f).fold(f64::INFINITY, f64::min).floor()
+    };
     b.transforms = las::Vector {
-        x: t(500_000.0),
-        y: t(4_000_000.0),
-        z: t(0.0),
+        x: t(floor(|p| p.0)),
+        y: t(floor(|p| p.1)),
+        z: t(floor(|p| p.2)),
     };
     let mut header = b.into_header().unwrap();
     if let Some(wkt) = wkt {
@@ -163,7 +167,10 @@ fn their_laz_in_metres_loads_with_every_class_and_the_robot_follows_its_relief()
         .map(|f| f.pose.translation.vector.z)
         .fold(f32::NEG_INFINITY, f32::max)
         - (t.ground_height() + altitude);
-    assert!(climbed > 3.0, "the robot climbs with the ground ({climbed} m)");
+    assert!(
+        climbed > 3.0,
+        "the robot climbs with the ground ({climbed} m)"
+    );
     assert!(seq.frames.iter().all(|f| f.points.len() == 3000));
 }
 
@@ -176,7 +183,14 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
     let las = laz.to_str().unwrap();
     let (ok, stdout, stderr) = host_sim(
         &[
-            "eval", "--las", las, "--frames", "12", "--points", "1500", "--no-sweep",
+            "eval",
+            "--las",
+            las,
+            "--frames",
+            "12",
+            "--points",
+            "1500",
+            "--no-sweep",
         ],
         &out,
     );
@@ -204,11 +218,17 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
     // observed, the map beats the network's own labels; the kernel's spreading beats the plain mean.
     let seg = observed("Segmentation only");
     let bki = observed("LatentBKI f32 (f = 3)");
-    assert!(seg > 40.0 && bki > seg, "segmentation {seg}, LatentBKI {bki}");
+    assert!(
+        seg > 40.0 && bki > seg,
+        "segmentation {seg}, LatentBKI {bki}"
+    );
     assert!(acc("LatentBKI f32 (f = 3)") > acc("VLMap-style mean (f = 1)") + 10.0);
     let device = acc("LatentBKI on-device, quantized (f = 3)");
     let f32_map = acc("LatentBKI f32 (f = 3)");
-    assert!((f32_map - device).abs() < 1.0, "f32 {f32_map}, device {device}");
+    assert!(
+        (f32_map - device).abs() < 1.0,
+        "f32 {f32_map}, device {device}"
+    );
     for f in [
         "tile/semantic_map.png",
         "tile/query_house.png",
@@ -235,7 +255,15 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
     // Flying 40 m above the ground with a 10 m LiDAR, the robot sees nothing.
     let (ok, stdout, stderr) = host_sim(
         &[
-            "eval", "--las", las, "--frames", "4", "--points", "500", "--no-sweep", "--altitude",
+            "eval",
+            "--las",
+            las,
+            "--frames",
+            "4",
+            "--points",
+            "500",
+            "--no-sweep",
+            "--altitude",
             "40",
         ],
         &out,
@@ -308,4 +336,146 @@ fn user_and_reserved_classes_get_a_name_and_a_file_without_crs_is_metres() {
     assert!(cos.abs() < 0.3, "{cos}");
     assert_eq!(e[3], vocab.class_embeddings(&["class 64"]).unwrap()[0]);
     assert!(vocab.class_embeddings(&["klass 64"]).is_err());
+}
+
+const NEBRASKA_FTUS: &str = r#"PROJCS["NAD83(2011) / Nebraska (ftUS)",GEOGCS["NAD83(2011)",DATUM["NAD83_National_Spatial_Reference_System_2011",SPHEROID["GRS 1980",6378137,298.257222101]],UNIT["degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic_2SP"],UNIT["US survey foot",0.304800609601219,AUTHORITY["EPSG","9003"]],AUTHORITY["EPSG","6517"]]"#;
+
+fn run(args: &[&std::ffi::OsStr]) -> (bool, String, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn integrate_reads_a_laz_with_its_features_beside_it() {
+    use host_sim::npy_io::{read_map_npz, write_npy};
+    use host_sim::ReferenceMap;
+    const D: usize = 8;
+    let dir = tempfile::tempdir().unwrap();
+    // 500 points in a 6 × 6 × 3 ft box, geo-referenced in US survey feet.
+    let mut s = 0x2545_F491u32;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        f64::from(s) / f64::from(u32::MAX)
+    };
+    let points: Vec<(f64, f64, f64, u8)> = (0..500)
+        .map(|_| {
+            (
+                2_445_180.0 + 6.0 * next(),
+                604_300.0 + 6.0 * next(),
+                1_354.0 + 3.0 * next(),
+                2,
+            )
+        })
+        .collect();
+    let features: Vec<f32> = (0..500 * D).map(|_| next() as f32 - 0.5).collect();
+    let write_features = |path: &Path, rows: usize| {
+        let mut bytes = Vec::new();
+        write_npy(
+            &mut bytes,
+            &[rows as u64, D as u64],
+            features[..rows * D].iter().copied(),
+        )
+        .unwrap();
+        std::fs::write(path, bytes).unwrap();
+    };
+    let laz = dir.path().join("scan.laz");
+    write_las(&laz, &points, Some(NEBRASKA_FTUS));
+    write_features(&dir.path().join("scan.npy"), 500);
+
+    // What the command must compute: the file's points, in metres from its minimum corner.
+    let mut r = las::Reader::from_path(&laz).unwrap();
+    let min = r.header().bounds().min;
+    let data = r.read_all().unwrap();
+    let positions: Vec<[f32; 3]> = data
+        .x()
+        .zip(data.y())
+        .zip(data.z())
+        .map(|((x, y), z)| {
+            [
+                ((x - min.x) * US_SURVEY_FOOT_M) as f32,
+                ((y - min.y) * US_SURVEY_FOOT_M) as f32,
+                ((z - min.z) * US_SURVEY_FOOT_M) as f32,
+            ]
+        })
+        .collect();
+    assert!(positions.iter().all(|p| p[0] < 1.83 && p[2] < 0.92));
+    let feats: Vec<[f32; D]> = features
+        .chunks_exact(D)
+        .map(|c| c.try_into().unwrap())
+        .collect();
+    let mut expected = ReferenceMap::<D>::new(latentbki::MapConfig::default()).unwrap();
+    expected.integrate(
+        &latentbki::nalgebra::Isometry3::identity(),
+        &positions,
+        &feats,
+    );
+
+    let out = dir.path().join("map.npz");
+    let (ok, stdout, stderr) = run(&[
+        "integrate".as_ref(),
+        laz.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("units US survey foot (from the WKT)"),
+        "{stdout}"
+    );
+    let map = read_map_npz(&out).unwrap();
+    assert_eq!(map.dim, D);
+    assert_eq!(map.keys.len(), expected.len());
+    assert!(expected.len() > 100);
+    for (i, k) in map.keys.iter().enumerate() {
+        let v = expected
+            .get(&latentbki::VoxelKey::new(k[0], k[1], k[2]))
+            .expect("voxel exists");
+        assert_eq!(map.lambda[i], v.lambda);
+        assert_eq!(&map.mean[i * D..(i + 1) * D], &v.mean[..]);
+    }
+
+    // Mistakes get one clear line each.
+    let short = dir.path().join("short.laz");
+    std::fs::copy(&laz, &short).unwrap();
+    write_features(&dir.path().join("short.npy"), 499);
+    let (ok, _, err) = run(&[
+        "integrate".as_ref(),
+        short.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(
+        !ok && err.contains("499 feature rows for the 500 points"),
+        "{err}"
+    );
+    let bare = dir.path().join("bare.laz");
+    std::fs::copy(&laz, &bare).unwrap();
+    let (ok, _, err) = run(&[
+        "integrate".as_ref(),
+        bare.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(
+        !ok && err.contains("bare.npy") && err.contains("(N, D) float32"),
+        "{err}"
+    );
+    let (ok, _, err) = run(&[
+        "integrate".as_ref(),
+        laz.as_os_str(),
+        dir.path().join("scan.npy").as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(!ok && err.contains("not both"), "{err}");
 }

@@ -158,14 +158,7 @@ pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
         None => println!("LatentBKI demo: a robot maps the real labelled LiDAR tile (ASPRS classes) with a simulated vision-language network."),
         Some(p) => println!("LatentBKI demo: a robot maps {} (ASPRS classes) with a simulated vision-language network.", p.display()),
     }
-    let report = scenes::run(
-        Scene::Tile,
-        &options,
-        &setup,
-        &args.out,
-        true,
-        link,
-    )?;
+    let report = scenes::run(Scene::Tile, &options, &setup, &args.out, true, link)?;
     print_report(&report);
     let path = write_results(&args.out, std::slice::from_ref(&report), "demo")?;
     println!("wrote {}", path.display());
@@ -285,6 +278,9 @@ pub fn query(args: &QueryArgs) -> Result<()> {
         ..SceneOptions::default()
     };
     let source = SceneSource::new(scene, &options, args.seed)?;
+    if let (Some(t), Some(_)) = (source.tile(), &args.tile.las) {
+        println!("{}: {}", source.title(), t.summary());
+    }
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
     source.check_enough(&train, &test)?;

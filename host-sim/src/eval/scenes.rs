@@ -12,9 +12,9 @@ use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
 use super::figures::{self, TopDown};
 use super::methods::{Decoder, VoxelSink};
 use super::sparsification::{self, Sparsification};
+use crate::cli_args::TileArgs;
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
 use crate::sim::sensor::{DepthCamera, MultizoneTof, RangeLidar};
-use crate::cli_args::TileArgs;
 use crate::sim::tile::{self, Tile, TileRun};
 use crate::sim::vocab::Vocabulary;
 use crate::sim::{mix_all, Sequence};
@@ -207,7 +207,9 @@ impl SceneSource {
         match &self.options.tile.las {
             Some(path) if self.scene == Scene::Tile => format!(
                 "tile {}",
-                path.file_name().unwrap_or(path.as_os_str()).to_string_lossy()
+                path.file_name()
+                    .unwrap_or(path.as_os_str())
+                    .to_string_lossy()
             ),
             _ => self.scene.name().into(),
         }

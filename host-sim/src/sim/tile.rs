@@ -127,20 +127,20 @@ pub fn asprs_phrase(code: u8) -> Option<&'static str> {
         4 => "medium vegetation",
         5 => "high vegetation",
         6 => "building",
-        7 => "noise",            // low point (noise)
-        8 => "model key point",  // reserved in 1.4, model key-point in 1.0–1.3
+        7 => "noise",           // low point (noise)
+        8 => "model key point", // reserved in 1.4, model key-point in 1.0–1.3
         9 => "water",
         10 => "rail",
         11 => "road surface",
-        12 => "overlap",         // reserved in 1.4, overlap points in 1.0–1.3
-        13 => "guard wire",      // wire – guard (shield)
-        14 => "conductor wire",  // wire – conductor (phase)
+        12 => "overlap",        // reserved in 1.4, overlap points in 1.0–1.3
+        13 => "guard wire",     // wire – guard (shield)
+        14 => "conductor wire", // wire – conductor (phase)
         15 => "transmission tower",
-        16 => "insulator",       // wire-structure connector (e.g. insulator)
+        16 => "insulator", // wire-structure connector (e.g. insulator)
         17 => "bridge deck",
         18 => "high noise",
         19 => "overhead structure",
-        20 => "ignored ground",  // e.g. breakline proximity
+        20 => "ignored ground", // e.g. breakline proximity
         21 => "snow",
         22 => "temporal exclusion",
         _ => return None,
@@ -197,7 +197,9 @@ pub enum TileError {
     #[error("the CRS is geographic ({0}): coordinates are degrees, not lengths; reproject the file to a projected CRS in metres or feet (e.g. `pdal translate in.laz out.laz reprojection --filters.reprojection.out_srs=EPSG:32633`)")]
     Geographic(String),
     /// The CRS names a unit we do not know.
-    #[error("the CRS gives the unit {0}, which is not metre, foot or US survey foot: pass --units")]
+    #[error(
+        "the CRS gives the unit {0}, which is not metre, foot or US survey foot: pass --units"
+    )]
     UnknownUnit(String),
 }
 
@@ -740,8 +742,13 @@ mod tests {
         let mut b = las::Builder::from(r.header().clone());
         b.vlrs.retain(|v| !v.is_wkt_crs());
         b.evlrs.retain(|v| !v.is_wkt_crs());
-        let g = units_of(&b.clone().into_header().unwrap()).unwrap().unwrap();
-        assert_eq!((g.horizontal, g.vertical), (US_SURVEY_FOOT_M, US_SURVEY_FOOT_M));
+        let g = units_of(&b.clone().into_header().unwrap())
+            .unwrap()
+            .unwrap();
+        assert_eq!(
+            (g.horizontal, g.vertical),
+            (US_SURVEY_FOOT_M, US_SURVEY_FOOT_M)
+        );
         assert_eq!(g.source, "from the GeoTIFF keys");
         b.vlrs.clear();
         b.evlrs.clear();
