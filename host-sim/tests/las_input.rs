@@ -1,11 +1,13 @@
 //! A user's own point cloud: `host-sim eval --las their.laz` on an airborne tile in metres with classes
 //! {1, 2, 3, 4, 5, 17} and relief gives the table and the pictures; a run that sees too little says what to
-//! change in one line.
+//! change in one line; `integrate` takes a `.laz` with its features beside it.
 //!
-//! The test data is made here from the committed tile (laspy's, BSD-2-Clause; see data/README.md): its
-//! coordinates converted from US survey feet to metres, 9 m of relief added (a 1:2 slope along x; the flight
-//! used to hold 2 m above the lowest ground point), buildings relabelled 17 (bridge deck), noise and the
-//! ground of a 4 m strip relabelled 1 (unclassified), written as LAS 1.4 / LAZ with a WKT CRS in metres.
+//! The tile in metres is `data/relief-tile-metres.laz`, made by [`their_tile`] from the committed tile
+//! (laspy's, BSD-2-Clause; see data/README.md): its coordinates converted from US survey feet to metres,
+//! 9 m of relief added (a 1:2 slope along x; the flight used to hold 2 m above the lowest ground point),
+//! buildings relabelled 17 (bridge deck), noise and the ground of a 4 m strip relabelled 1 (unclassified),
+//! written as LAS 1.4 / LAZ with a WKT CRS in metres (UTM zone 33N; the placement is arbitrary). A test
+//! checks that the committed file is what the recipe makes (`BLESS=1` rewrites it).
 
 use host_sim::sim::tile::{self, LengthUnit, TerrainFollowing, Tile, TileRun, US_SURVEY_FOOT_M};
 use std::path::{Path, PathBuf};
@@ -18,6 +20,33 @@ const SLOPE: f64 = 0.5;
 
 fn committed_tile() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/file_with_both_wkt_and_geotiff_vlrs.las")
+}
+
+fn relief_tile() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("data/relief-tile-metres.laz")
+}
+
+fn points_of(path: &Path) -> Vec<(f64, f64, f64, u8)> {
+    let data = las::Reader::from_path(path).unwrap().read_all().unwrap();
+    data.x()
+        .zip(data.y())
+        .zip(data.z())
+        .zip(data.classification())
+        .map(|(((x, y), z), c)| (x, y, z, c))
+        .collect()
+}
+
+#[test]
+fn the_committed_relief_tile_is_what_the_recipe_makes() {
+    let dir = tempfile::tempdir().unwrap();
+    let made = dir.path().join("made.laz");
+    their_tile(&made);
+    if std::env::var_os("BLESS").is_some() {
+        std::fs::copy(&made, relief_tile()).unwrap();
+    }
+    let (a, b) = (points_of(&made), points_of(&relief_tile()));
+    assert_eq!(a.len(), 25_408);
+    assert!(a == b, "data/relief-tile-metres.laz differs from the recipe: BLESS=1 rewrites it");
 }
 
 /// Write `points` (x, y, z in the CRS's units, ASPRS code) as a LAS 1.4 point format 6 file at 0.001
@@ -109,9 +138,7 @@ fn host_sim(args: &[&str], out: &Path) -> (bool, String, String) {
 
 #[test]
 fn their_laz_in_metres_loads_with_every_class_and_the_robot_follows_its_relief() {
-    let dir = tempfile::tempdir().unwrap();
-    let laz = dir.path().join("their.laz");
-    their_tile(&laz);
+    let laz = relief_tile();
     assert_eq!(&std::fs::read(&laz).unwrap()[..4], b"LASF");
     let t = Tile::from_path(&laz, None).unwrap();
     assert_eq!(t.units.horizontal, 1.0);
@@ -177,8 +204,7 @@ fn their_laz_in_metres_loads_with_every_class_and_the_robot_follows_its_relief()
 #[test]
 fn eval_on_their_laz_gives_the_table_and_the_pictures() {
     let dir = tempfile::tempdir().unwrap();
-    let laz = dir.path().join("their.laz");
-    their_tile(&laz);
+    let laz = relief_tile();
     let out = dir.path().join("out");
     let las = laz.to_str().unwrap();
     let (ok, stdout, stderr) = host_sim(
@@ -202,7 +228,10 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
             && stdout.contains("17 bridge deck"),
         "{stdout}"
     );
-    assert!(stdout.contains("### Scene: tile their.laz"), "{stdout}");
+    assert!(
+        stdout.contains("### Scene: tile relief-tile-metres.laz"),
+        "{stdout}"
+    );
     // Only their tile ran (not the indoor house), and every method has a row with numbers.
     assert!(!stdout.contains("Scene: indoor"), "{stdout}");
     let column = |label: &str, c: usize| -> f64 {
@@ -248,8 +277,7 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
 #[test]
 fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
-    let laz = dir.path().join("their.laz");
-    their_tile(&laz);
+    let laz = relief_tile();
     let las = laz.to_str().unwrap();
     let out = dir.path().join("out");
     // Flying 40 m above the ground with a 10 m LiDAR, the robot sees nothing.

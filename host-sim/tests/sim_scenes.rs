@@ -245,7 +245,7 @@ fn pca_finds_the_subspace_and_is_orthonormal() {
 #[test]
 fn unknown_words_list_the_vocabulary() {
     let v = Vocabulary::builtin();
-    assert_eq!(v.phrases().len(), 50);
+    assert_eq!(v.phrases().len(), 64);
     let e = v.get("spaceship").unwrap_err();
     let msg = e.to_string();
     assert!(

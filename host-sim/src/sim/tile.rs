@@ -73,11 +73,14 @@ impl LengthUnit {
             .unwrap_or(factor)
     }
     fn name_of(factor: f64) -> String {
-        match factor {
-            f if f == 1.0 => "metre".into(),
-            f if f == FOOT_M => "foot".into(),
-            f if f == US_SURVEY_FOOT_M => "US survey foot".into(),
-            f => format!("{f} m"),
+        if factor == 1.0 {
+            "metre".into()
+        } else if factor == FOOT_M {
+            "foot".into()
+        } else if factor == US_SURVEY_FOOT_M {
+            "US survey foot".into()
+        } else {
+            format!("{factor} m")
         }
     }
 }

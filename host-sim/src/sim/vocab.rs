@@ -131,7 +131,7 @@ pub fn unnamed_class_direction(phrase: &str) -> [f32; FULL_DIM] {
     use rand_distr::Distribution;
     let seed = phrase
         .bytes()
-        .fold(0xC1A5_5u64, |h, b| super::mix(h ^ u64::from(b)));
+        .fold(0x000C_1A55_u64, |h, b| super::mix(h ^ u64::from(b)));
     let mut rng = latentbki::rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut v = [0.0f32; FULL_DIM];
     for x in &mut v {
