@@ -46,7 +46,10 @@ fn the_committed_relief_tile_is_what_the_recipe_makes() {
     }
     let (a, b) = (points_of(&made), points_of(&relief_tile()));
     assert_eq!(a.len(), 25_408);
-    assert!(a == b, "data/relief-tile-metres.laz differs from the recipe: BLESS=1 rewrites it");
+    assert!(
+        a == b,
+        "data/relief-tile-metres.laz differs from the recipe: BLESS=1 rewrites it"
+    );
 }
 
 /// Write `points` (x, y, z in the CRS's units, ASPRS code) as a LAS 1.4 point format 6 file at 0.001
