@@ -272,6 +272,10 @@ pub fn query(args: &QueryArgs) -> Result<()> {
         scene == Scene::Tile || args.tile == TileArgs::default(),
         "--las, --units, --range and --altitude describe the tile scene; --scene indoor does not use them"
     );
+    ensure!(
+        scene == Scene::Tile || args.map.config()? == latentbki::MapConfig::default(),
+        "the map options (--voxel-size …) apply to the tile scene; --scene indoor uses the paper's indoor configuration"
+    );
     let options = SceneOptions {
         tile: args.tile.clone(),
         tile_config: args.map.config()?,
