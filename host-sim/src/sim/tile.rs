@@ -197,7 +197,7 @@ pub enum TileError {
     #[error("the file holds no point")]
     Empty,
     /// The coordinates are angles, not lengths.
-    #[error("the CRS is geographic ({0}): coordinates are degrees, not lengths; reproject the file to a projected CRS in metres or feet (e.g. `pdal translate in.laz out.laz reprojection --filters.reprojection.out_srs=EPSG:32633`)")]
+    #[error("the CRS is geographic ({0}): coordinates are degrees, not lengths; reproject the file to a projected CRS in metres or feet (e.g. `pdal translate in.laz out.laz reprojection --filters.reprojection.out_srs=EPSG:<your UTM zone>`)")]
     Geographic(String),
     /// The CRS names a unit we do not know.
     #[error(
