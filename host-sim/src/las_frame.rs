@@ -43,16 +43,21 @@ pub fn read_cloud_frame(
     units: Option<LengthUnit>,
     origin: Option<[f64; 3]>,
 ) -> Result<CloudFrame> {
-    let mut reader = las::Reader::from_path(cloud).with_context(|| cloud.display().to_string())?;
+    // One line per problem: the file, then what is wrong with it.
+    let at = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e}", cloud.display());
+    let mut reader = las::Reader::from_path(cloud).map_err(|e| at(&e))?;
     let units = match units {
         Some(u) => Units::uniform(u, "--units"),
         None => units_of(reader.header())
-            .with_context(|| cloud.display().to_string())?
-            .unwrap_or_else(|| Units::uniform(LengthUnit::Metre, "assumed: the file has no CRS")),
+            .map_err(|e| at(&e))?
+            .unwrap_or_else(|| {
+                Units::uniform(
+                    LengthUnit::Metre,
+                    "assumed: the file has no CRS; --units to change",
+                )
+            }),
     };
-    let data = reader
-        .read_all()
-        .with_context(|| cloud.display().to_string())?;
+    let data = reader.read_all().map_err(|e| at(&e))?;
     let origin = origin.unwrap_or_else(|| {
         let b = reader.header().bounds();
         [b.min.x, b.min.y, b.min.z]

@@ -62,7 +62,12 @@ fn write_las(path: &Path, points: &[(f64, f64, f64, u8)], wkt: Option<&str>) {
         offset,
     };
     let floor = |f: fn(&(f64, f64, f64, u8)) -> f64| {
-        points.iter().map(f).fold(f64::INFINITY, f64::min).floor()
+        let m = points.iter().map(f).fold(f64::INFINITY, f64::min).floor();
+        if m.is_finite() {
+            m
+        } else {
+            0.0
+        }
     };
     b.transforms = las::Vector {
         x: t(floor(|p| p.0)),
@@ -331,6 +336,20 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
         lines[0].contains("too sparse") && lines[0].contains("raise --range"),
         "{stderr}"
     );
+    // An empty file and a file that is not LAS: one line each, naming the file.
+    let empty = dir.path().join("empty.las");
+    write_las(&empty, &[], Some(UTM33N));
+    let garbage = dir.path().join("garbage.laz");
+    std::fs::write(&garbage, b"x y z class\n1 2 3 2\n").unwrap();
+    for (file, why) in [(&empty, "holds no point"), (&garbage, "reading LAS")] {
+        let (ok, _, stderr) = host_sim(&["eval", "--las", file.to_str().unwrap()], &out);
+        let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert!(!ok && lines.len() == 1, "{stderr}");
+        assert!(
+            lines[0].contains(&format!("--las {}: ", file.display())) && lines[0].contains(why),
+            "{stderr}"
+        );
+    }
 }
 
 #[test]

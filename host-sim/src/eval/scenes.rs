@@ -122,8 +122,9 @@ impl SceneSource {
                 t.check()?;
                 let tile = match &t.las {
                     None => Tile::builtin_in(t.units).context("loading the built-in LAS tile")?,
+                    // One line: the option, the file and what is wrong with it.
                     Some(path) => Tile::from_path(path, t.units)
-                        .with_context(|| format!("--las {}", path.display()))?,
+                        .map_err(|e| anyhow::anyhow!("--las {}: {e}", path.display()))?,
                 };
                 (Some(tile), None)
             }

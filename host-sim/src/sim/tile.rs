@@ -226,7 +226,10 @@ impl Tile {
         let units = match units {
             Some(u) => Units::uniform(u, "--units"),
             None => units_of(reader.header())?.unwrap_or_else(|| {
-                Units::uniform(LengthUnit::Metre, "assumed: the file has no CRS")
+                Units::uniform(
+                    LengthUnit::Metre,
+                    "assumed: the file has no CRS; --units to change",
+                )
             }),
         };
         let data = reader.read_all()?;
@@ -393,11 +396,19 @@ pub fn units_of(header: &las::Header) -> Result<Option<Units>, TileError> {
     };
     // ProjLinearUnitsGeoKey, VerticalUnitsGeoKey.
     let (h, v) = (unit(3076)?, unit(4099)?);
-    Ok(h.or(v).map(|h| Units {
-        horizontal: h,
-        vertical: v.unwrap_or(h),
-        source: "from the GeoTIFF keys".into(),
-    }))
+    Ok(match (h.or(v), key(3072)) {
+        (Some(h), _) => Some(Units {
+            horizontal: h,
+            vertical: v.unwrap_or(h),
+            source: "from the GeoTIFF keys".into(),
+        }),
+        // A projected CRS named only by its EPSG code: most are metric, and we carry no EPSG table.
+        (None, Some(code)) => Some(Units::uniform(
+            LengthUnit::Metre,
+            &format!("assumed: the GeoTIFF keys name EPSG:{code} but no unit; --units to change"),
+        )),
+        (None, None) => None,
+    })
 }
 
 /// A node of a WKT: `KEYWORD[arg, …]`.
