@@ -336,6 +336,28 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
         lines[0].contains("too sparse") && lines[0].contains("raise --range"),
         "{stderr}"
     );
+    // Enough points to run, but 0.59 m apart for 0.1 m voxels: the table, then one line saying what to
+    // change.
+    let (ok, stdout, stderr) = host_sim(
+        &[
+            "eval",
+            "--las",
+            thin.to_str().unwrap(),
+            "--frames",
+            "3",
+            "--points",
+            "500",
+            "--no-sweep",
+        ],
+        &out,
+    );
+    assert!(ok, "{stderr}");
+    let hints: Vec<&str> = stdout.lines().filter(|l| l.starts_with("hint:")).collect();
+    assert_eq!(hints.len(), 1, "{stdout}");
+    assert!(
+        hints[0].contains("≈ 0.59 m apart") && hints[0].contains("try --voxel-size 0.60"),
+        "{stdout}"
+    );
     // An empty file and a file that is not LAS: one line each, naming the file.
     let empty = dir.path().join("empty.las");
     write_las(&empty, &[], Some(UTM33N));

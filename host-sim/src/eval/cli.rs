@@ -135,6 +135,9 @@ fn write_results(out: &Path, reports: &[Report], command: &str) -> Result<PathBu
 
 fn print_report(r: &Report) {
     println!("{}", r.markdown);
+    if let Some(hint) = &r.hint {
+        println!("{hint}\n");
+    }
     for f in &r.figures {
         println!("wrote {}", f.display());
     }

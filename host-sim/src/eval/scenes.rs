@@ -263,6 +263,35 @@ impl SceneSource {
         }
     }
 
+    /// When the LatentBKI map (filter size `f`) left more than 20 % of the held-out tile points in voxels
+    /// no integrated point reached, one line that says what to change: voxels about the size of the tile's
+    /// point spacing (the kernel length kept at five voxels, the paper's ratio), or more frames.
+    pub fn coverage_hint(&self, results: &[MethodResult], f: u8) -> Option<String> {
+        let (Scene::Tile, Some(t)) = (self.scene, &self.tile) else {
+            return None;
+        };
+        let r = results.iter().find(|r| r.method == Method::LatentBki(f))?;
+        let unknown = r.confusion.unknown() as f64 / r.confusion.total().max(1) as f64;
+        if unknown <= 0.2 {
+            return None;
+        }
+        let spacing = (t.area() as f64 / t.points.len().max(1) as f64).sqrt();
+        let voxel = self.options.tile_config.voxel_size();
+        let advice = if spacing > 1.5 * f64::from(voxel) {
+            let v = (spacing * 20.0).round() / 20.0;
+            format!(
+                "try --voxel-size {v:.2} --kernel-length {:.2} (about the spacing), or more --frames",
+                5.0 * v
+            )
+        } else {
+            "give more --frames or --points".to_string()
+        };
+        Some(format!(
+            "hint: {:.0} % of the held-out points fell in voxels no integrated point reached; the tile's points are ≈ {spacing:.2} m apart and the voxels {voxel} m: {advice}",
+            100.0 * unknown
+        ))
+    }
+
     /// The default budget of the main run.
     pub fn budget(&self) -> usize {
         match self.scene {
@@ -286,6 +315,8 @@ pub struct Report {
     pub markdown: String,
     /// PNGs written.
     pub figures: Vec<PathBuf>,
+    /// One line saying what to change when the map left most held-out points unknown.
+    pub hint: Option<String>,
 }
 
 /// Run one scene's experiment and write its pictures into `out/<scene>/`.
@@ -443,6 +474,7 @@ pub fn run(
             }
         }
     }
+    let hint = source.coverage_hint(&results, f);
     Ok(Report {
         scene,
         results,
@@ -450,5 +482,6 @@ pub fn run(
         sweep: sweep_points,
         markdown: md,
         figures: figs,
+        hint,
     })
 }
