@@ -4,8 +4,10 @@
 
 pub mod base_station;
 pub mod bench;
+pub mod cli_args;
 pub mod demo_link;
 pub mod eval;
+pub mod las_frame;
 pub mod link;
 pub mod npy_io;
 pub mod obs_map;

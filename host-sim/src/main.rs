@@ -2,10 +2,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use host_sim::cli_args::MapArgs;
+use host_sim::las_frame::{is_point_cloud, read_cloud_frame};
 use host_sim::npy_io::{read_frame, read_poses, write_map_npz, Compression, Frame};
+use host_sim::sim::tile::LengthUnit;
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::Isometry3;
-use latentbki::{KernelMode, MapConfig, Prior};
+use latentbki::{KernelMode, MapConfig};
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -21,7 +24,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Integrate recorded frames ((N, 3+D) float32 .npy, xyz then feature) into a map; write it as .npz.
+    /// Integrate recorded frames ((N, 3+D) float32 .npy, xyz then feature; or .las/.laz clouds with an
+    /// (N, D) .npy of features beside each) into a map; write it as .npz.
     Integrate(IntegrateArgs),
     /// The main job for a newcomer: a robot maps the real LiDAR tile; prints the results table and writes
     /// the pictures (out/).
@@ -52,60 +56,22 @@ struct EmbedVocabArgs {
     /// Output table.
     #[arg(long, default_value = "host-sim/data/text-embeddings.tsv")]
     out: PathBuf,
-    /// Phrases to embed (default: every phrase of the committed table, in order).
+    /// Phrases to embed (default: every phrase of the committed table, in order, then the ASPRS class
+    /// names it lacks).
     phrases: Vec<String>,
-}
-
-/// The map configuration, shared by every command that builds a map.
-#[derive(Args, Debug, Clone)]
-struct MapArgs {
-    /// Voxel edge length in metres.
-    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
-    voxel_size: f32,
-    /// Kernel length ℓ in metres.
-    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
-    kernel_length: f32,
-    /// Filter size f (odd, 1..=7): a point updates f³ voxels.
-    #[arg(long, default_value_t = 3)]
-    filter_size: u8,
-    /// Prior confidence λ₀.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    prior_lambda: f32,
-    /// Prior mean μ₀ (every dimension).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    prior_mean: f32,
-    /// Prior scatter Ψ₀ (every dimension).
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
-    prior_psi: f32,
-    /// Sub-voxel kernel: cells per axis for the point's position inside its voxel (0 = voxel-offset kernel).
-    #[arg(long, default_value_t = 0)]
-    subvoxel_cells: u8,
-}
-
-impl MapArgs {
-    fn config(&self) -> Result<MapConfig> {
-        let prior = Prior {
-            lambda: self.prior_lambda,
-            mean: self.prior_mean,
-            psi: self.prior_psi,
-        };
-        let mode = KernelMode::from_subvoxel_cells(self.subvoxel_cells);
-        MapConfig::new(
-            self.voxel_size,
-            self.kernel_length,
-            self.filter_size,
-            prior,
-            mode,
-        )
-        .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
-    }
 }
 
 #[derive(Args, Debug)]
 struct IntegrateArgs {
-    /// Frames, applied as batches in the order given.
+    /// Frames, applied as batches in the order given: (N, 3+D) float32 .npy files, or .las/.laz point
+    /// clouds, each with its features in the .npy of the same name beside it ((N, D) float32, row i =
+    /// point i; coordinates become metres from the first cloud's minimum corner).
     #[arg(required = true)]
     frames: Vec<PathBuf>,
+    /// Units of .las/.laz coordinates [default: from the file's CRS (WKT, else GeoTIFF keys); metres if it
+    /// has none].
+    #[arg(long, value_enum)]
+    units: Option<LengthUnit>,
     /// Output .npz with arrays keys (V×3 int32), lambda (V), mean (V×D), psi (V×D).
     #[arg(long, short)]
     out: PathBuf,
@@ -162,7 +128,41 @@ impl<const D: usize> IntegrateMap<D> {
     }
 }
 
-fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Frame) -> Result<()> {
+/// Reads each frame by its kind; point clouds share the first one's origin.
+struct FrameLoader {
+    units: Option<LengthUnit>,
+    origin: Option<[f64; 3]>,
+}
+
+impl FrameLoader {
+    fn load(&mut self, path: &std::path::Path) -> Result<Frame> {
+        if !is_point_cloud(path) {
+            return Ok(read_frame(path)?);
+        }
+        let cloud = read_cloud_frame(path, self.units, self.origin)?;
+        if self.origin.is_none() {
+            let o = cloud.origin;
+            println!(
+                "{}: units {}; positions in metres from the origin ({}, {}, {}) in file units (its minimum corner), D = {}",
+                path.display(),
+                cloud.units.describe(),
+                o[0],
+                o[1],
+                o[2],
+                cloud.frame.dim
+            );
+            self.origin = Some(o);
+        }
+        Ok(cloud.frame)
+    }
+}
+
+fn integrate<const D: usize>(
+    args: &IntegrateArgs,
+    config: MapConfig,
+    first: Frame,
+    loader: &mut FrameLoader,
+) -> Result<()> {
     let poses = match &args.poses {
         Some(p) => {
             let poses = read_poses(p)?;
@@ -183,7 +183,7 @@ fn integrate<const D: usize>(args: &IntegrateArgs, config: MapConfig, first: Fra
     for (i, path) in args.frames.iter().enumerate() {
         let f = match frame.take() {
             Some(f) => f,
-            None => read_frame(path)?,
+            None => loader.load(path)?,
         };
         if f.dim != D {
             return Err(host_sim::npy_io::IoError::DimensionMismatch {
@@ -238,8 +238,7 @@ fn main() -> Result<()> {
         // The base station's simulated link plugs into the demo here (`Some(Box<dyn VoxelSink>)`).
         Command::Demo(args) => {
             // The robot's evictions cross a faulty serial link (byte error rate 1e-4) to a base station.
-            let link =
-                host_sim::demo_link::DemoLink::new(&latentbki::MapConfig::default(), 1e-4, 7)?;
+            let link = host_sim::demo_link::DemoLink::new(&args.map.config()?, 1e-4, 7)?;
             let sink = host_sim::demo_link::DemoLinkSink(link.clone());
             host_sim::eval::cli::demo(&args, Some(Box::new(sink)))?;
             let mut link = link
@@ -255,7 +254,14 @@ fn main() -> Result<()> {
         #[cfg(feature = "encoder")]
         Command::EmbedVocab(args) => {
             let phrases = if args.phrases.is_empty() {
-                host_sim::sim::vocab::Vocabulary::builtin().phrases()
+                // The committed phrases in their order, then any ASPRS class name the table lacks.
+                let mut phrases = host_sim::sim::vocab::Vocabulary::builtin().phrases();
+                for p in host_sim::sim::tile::asprs_phrases() {
+                    if !phrases.iter().any(|q| q == p) {
+                        phrases.push(p.to_string());
+                    }
+                }
+                phrases
             } else {
                 args.phrases.clone()
             };
@@ -269,12 +275,22 @@ fn main() -> Result<()> {
         Command::MapQuery(args) => host_sim::base_station::cli::map_query(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
-            let first = read_frame(&args.frames[0]).context("reading the first frame")?;
+            let clouds = args.frames.iter().filter(|p| is_point_cloud(p)).count();
+            if clouds != 0 && clouds != args.frames.len() {
+                bail!("give either .npy frames or .las/.laz clouds, not both ({clouds} of {} frames are clouds)", args.frames.len());
+            }
+            let mut loader = FrameLoader {
+                units: args.units,
+                origin: None,
+            };
+            let first = loader
+                .load(&args.frames[0])
+                .context("reading the first frame")?;
             // The map is generic over D at compile time; these are the dimensions the CLI carries.
             macro_rules! by_dim {
                 ($($d:literal)*) => {
                     match first.dim {
-                        $($d => integrate::<$d>(&args, config, first),)*
+                        $($d => integrate::<$d>(&args, config, first, &mut loader),)*
                         other => bail!("feature dimension {other} is not compiled in; supported: {:?}", [$($d),*]),
                     }
                 };

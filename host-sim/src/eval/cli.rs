@@ -5,6 +5,7 @@ use super::experiment::{self, Method, Setup};
 use super::figures::{self, TopDown};
 use super::methods::{Decoder, VoxelSink, D};
 use super::scenes::{self, Report, Scene, SceneOptions, SceneSource};
+use crate::cli_args::{MapArgs, TileArgs};
 use crate::sim::vocab::Vocabulary;
 use anyhow::{bail, ensure, Context, Result};
 use clap::{Args, ValueEnum};
@@ -31,14 +32,20 @@ pub struct DemoArgs {
     /// Seed of the run (network noise, hold-out split, sensor subsampling).
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
+    /// The point cloud and the flight.
+    #[command(flatten)]
+    pub tile: TileArgs,
+    /// The map configuration.
+    #[command(flatten)]
+    pub map: MapArgs,
 }
 
 /// `eval` options.
 #[derive(Args, Debug, Clone)]
 pub struct EvalArgs {
-    /// Scenes to evaluate.
-    #[arg(long, value_enum, default_value = "both")]
-    pub scene: SceneArg,
+    /// Scenes to evaluate [default: both; only the tile with --las].
+    #[arg(long, value_enum)]
+    pub scene: Option<SceneArg>,
     /// Output directory for results.md and the PNGs.
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
@@ -72,6 +79,23 @@ pub struct EvalArgs {
     /// Expected norm of per-point feature noise relative to the unit text embedding.
     #[arg(long, allow_negative_numbers = true)]
     pub feature_noise: Option<f32>,
+    /// The tile scene's point cloud and flight.
+    #[command(flatten)]
+    pub tile: TileArgs,
+    /// The tile scene's map configuration (the indoor scene keeps the paper's indoor one: 0.05 m voxels).
+    #[command(flatten)]
+    pub map: MapArgs,
+}
+
+impl EvalArgs {
+    /// The scenes to run: `--scene`, else both, or only the tile when `--las` names one.
+    pub fn scene(&self) -> SceneArg {
+        self.scene.unwrap_or(if self.tile.las.is_some() {
+            SceneArg::Tile
+        } else {
+            SceneArg::Both
+        })
+    }
 }
 
 /// `query` options.
@@ -88,6 +112,12 @@ pub struct QueryArgs {
     /// Seed of the run.
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
+    /// The tile scene's point cloud and flight.
+    #[command(flatten)]
+    pub tile: TileArgs,
+    /// The tile scene's map configuration.
+    #[command(flatten)]
+    pub map: MapArgs,
 }
 
 fn write_results(out: &Path, reports: &[Report], command: &str) -> Result<PathBuf> {
@@ -105,6 +135,9 @@ fn write_results(out: &Path, reports: &[Report], command: &str) -> Result<PathBu
 
 fn print_report(r: &Report) {
     println!("{}", r.markdown);
+    if let Some(hint) = &r.hint {
+        println!("{hint}\n");
+    }
     for f in &r.figures {
         println!("wrote {}", f.display());
     }
@@ -119,15 +152,16 @@ pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
         seed: args.seed,
         ..Setup::default()
     };
-    println!("LatentBKI demo: a robot maps the real labelled LiDAR tile (ASPRS classes) with a simulated vision-language network.");
-    let report = scenes::run(
-        Scene::Tile,
-        &SceneOptions::default(),
-        &setup,
-        &args.out,
-        true,
-        link,
-    )?;
+    let options = SceneOptions {
+        tile: args.tile.clone(),
+        tile_config: args.map.config()?,
+        ..SceneOptions::default()
+    };
+    match &args.tile.las {
+        None => println!("LatentBKI demo: a robot maps the real labelled LiDAR tile (ASPRS classes) with a simulated vision-language network."),
+        Some(p) => println!("LatentBKI demo: a robot maps {} (ASPRS classes) with a simulated vision-language network.", p.display()),
+    }
+    let report = scenes::run(Scene::Tile, &options, &setup, &args.out, true, link)?;
     print_report(&report);
     let path = write_results(&args.out, std::slice::from_ref(&report), "demo")?;
     println!("wrote {}", path.display());
@@ -143,7 +177,19 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     ensure!(args.frames >= 1, "--frames must be at least 1");
     ensure!(args.points >= 1, "--points must be at least 1");
     ensure!(args.pixels >= 1, "--pixels must be at least 1");
-    if args.scene != SceneArg::Indoor {
+    let scene = args.scene();
+    let tile_config = args.map.config()?;
+    if scene == SceneArg::Indoor {
+        ensure!(
+            args.tile == TileArgs::default(),
+            "--las, --units, --range and --altitude describe the tile scene; --scene indoor does not run it"
+        );
+        ensure!(
+            tile_config == latentbki::MapConfig::default(),
+            "the map options (--voxel-size …) apply to the tile scene; --scene indoor uses the paper's indoor configuration"
+        );
+    }
+    if scene != SceneArg::Indoor {
         ensure!(
             args.frames.saturating_mul(args.points) >= pca_min,
             "--frames × --points is {} × {}: the tile needs at least {pca_min} points in all to fit the {D}-component PCA",
@@ -180,9 +226,11 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         layout_seed: args.layout_seed,
         indoor_tof: args.tof,
         queries: args.queries.clone(),
+        tile: args.tile.clone(),
+        tile_config,
         ..SceneOptions::default()
     };
-    let scenes = match args.scene {
+    let scenes = match scene {
         SceneArg::Tile => vec![Scene::Tile],
         SceneArg::Indoor => vec![Scene::Indoor],
         SceneArg::Both => vec![Scene::Tile, Scene::Indoor],
@@ -223,19 +271,35 @@ pub fn query(args: &QueryArgs) -> Result<()> {
             ))
         }
     };
-    let setup = Setup {
-        seed: args.seed,
-        device_window: scene.device_window(),
-        ..Setup::default()
+    ensure!(
+        scene == Scene::Tile || args.tile == TileArgs::default(),
+        "--las, --units, --range and --altitude describe the tile scene; --scene indoor does not use them"
+    );
+    ensure!(
+        scene == Scene::Tile || args.map.config()? == latentbki::MapConfig::default(),
+        "the map options (--voxel-size …) apply to the tile scene; --scene indoor uses the paper's indoor configuration"
+    );
+    let options = SceneOptions {
+        tile: args.tile.clone(),
+        tile_config: args.map.config()?,
+        ..SceneOptions::default()
     };
-    let options = SceneOptions::default();
-    let source = SceneSource::new(scene, &options, setup.seed)?;
+    let source = SceneSource::new(scene, &options, args.seed)?;
+    if let (Some(t), Some(_)) = (source.tile(), &args.tile.las) {
+        println!("{}: {}", source.title(), t.summary());
+    }
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
+    source.check_enough(&train, &test)?;
+    let setup = Setup {
+        seed: args.seed,
+        device_window: source.device_window(&test.config),
+        ..Setup::default()
+    };
     let dec = experiment::decoding(&vocab, &train, &setup)?;
     let frames = experiment::encode(&test, &dec, &setup);
     let results = experiment::run(
-        &[Method::OnDevice(3)],
+        &[Method::OnDevice(test.config.filter_size())],
         &experiment::Inputs {
             frames: &frames,
             config: &test.config,
@@ -250,10 +314,8 @@ pub fn query(args: &QueryArgs) -> Result<()> {
     let top = TopDown::new(&snap, &test.config, test.cutaway_height);
     let cb = Decoder::from_pca(&dec.pca, &[embedding]).map_err(|e| anyhow::anyhow!("{e}"))?;
     // Where does the query beat every class name? (open vocabulary: the query competes with the classes)
-    let mut with_query = dec
-        .classes
-        .iter()
-        .map(|c| *vocab.get(c).expect("class in vocabulary"))
+    let mut with_query = (0..dec.classes.len())
+        .map(|c| *dec.encoder.embedding(c as u16))
         .collect::<Vec<_>>();
     with_query.push(embedding);
     let all = Decoder::from_pca(&dec.pca, &with_query).map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -315,7 +377,7 @@ mod tests {
 
     fn eval_args(out: &Path) -> EvalArgs {
         EvalArgs {
-            scene: SceneArg::Tile,
+            scene: Some(SceneArg::Tile),
             out: out.to_owned(),
             seed: 7,
             frames: 2,
@@ -327,6 +389,8 @@ mod tests {
             queries: Vec::new(),
             confusion_probability: None,
             feature_noise: None,
+            tile: TileArgs::default(),
+            map: MapArgs::default(),
         }
     }
 
@@ -353,7 +417,7 @@ mod tests {
         );
         // Indoors the tile's budget does not matter.
         let e = err(|a| {
-            a.scene = SceneArg::Indoor;
+            a.scene = Some(SceneArg::Indoor);
             a.points = 1;
             a.pixels = 0;
         });
@@ -367,6 +431,8 @@ mod tests {
             scene,
             out: out.to_owned(),
             seed: 7,
+            tile: TileArgs::default(),
+            map: MapArgs::default(),
         }
     }
 

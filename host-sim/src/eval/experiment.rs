@@ -79,7 +79,7 @@ pub struct Decoding {
 /// Fit the PCA on `train` (encoded with a seed of its own) and build the codebook.
 pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::Result<Decoding> {
     let names: Vec<&str> = train.classes.iter().map(String::as_str).collect();
-    let embeddings = vocab.embeddings(&names)?;
+    let embeddings = vocab.class_embeddings(&names)?;
     let train_seed = mix_all(&[setup.seed, 0x7EA1]);
     let train_encoder = Encoder::new(embeddings.clone(), setup.noise, train_seed);
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(train_seed);
@@ -192,15 +192,21 @@ impl Method {
     }
     /// The comparison of the paper's tables, plus the device map.
     pub fn all() -> Vec<Method> {
-        vec![
+        Self::for_filter(3)
+    }
+    /// The comparison with the kernel methods at filter size `f` (`--filter-size`; the paper's is 3).
+    pub fn for_filter(f: u8) -> Vec<Method> {
+        let mut methods = vec![
             Self::Segmentation,
             Self::Heuristic,
             Self::VlmapMean,
-            Self::ConvBki(3),
+            Self::ConvBki(f),
             Self::LatentBki(1),
-            Self::LatentBki(3),
-            Self::OnDevice(3),
-        ]
+            Self::LatentBki(f),
+            Self::OnDevice(f),
+        ];
+        methods.dedup(); // f = 1
+        methods
     }
 }
 

@@ -26,7 +26,7 @@ use std::collections::HashMap;
 
 /// Feature dimension of every map here (the paper's 64).
 pub const D: usize = 64;
-/// Codebook capacity (the vocabulary has 50 phrases).
+/// Codebook capacity: the most classes a scene can have (the vocabulary has 64 phrases).
 pub const K: usize = 64;
 /// A compressed feature.
 pub type Feature = [f32; D];

@@ -3,17 +3,23 @@
 //!
 //! The PCA is always fitted on a different sequence than the one evaluated: for the tile, another loop
 //! phase with other sensor and network seeds; indoors, another generated house.
+//!
+//! The tile scene maps the committed tile or the user's own `.las`/`.laz` ([`SceneOptions::tile`]) with
+//! the map configuration of [`SceneOptions::tile_config`]; a run whose sensor saw too few points stops
+//! with one line saying what to change ([`SceneSource::check_enough`]).
 
 use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
 use super::figures::{self, TopDown};
 use super::methods::{Decoder, VoxelSink};
 use super::sparsification::{self, Sparsification};
+use crate::cli_args::TileArgs;
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
 use crate::sim::sensor::{DepthCamera, MultizoneTof, RangeLidar};
 use crate::sim::tile::{self, Tile, TileRun};
 use crate::sim::vocab::Vocabulary;
 use crate::sim::{mix_all, Sequence};
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
+use latentbki::MapConfig;
 use std::path::{Path, PathBuf};
 
 /// Which scene.
@@ -33,8 +39,9 @@ impl Scene {
             Self::Indoor => "indoor",
         }
     }
-    /// The device map's window radius: the sensor's range plus the kernel's reach (the LiDAR sees 10 m; the
-    /// camera's 6 m depth limit is up to 8 m of range in the image corners).
+    /// The device map's window radius at the default sensors: the sensor's range plus the kernel's reach
+    /// (the LiDAR sees 10 m; the camera's 6 m depth limit is up to 8 m of range in the image corners). A
+    /// scaled or `--range` LiDAR widens it: [`SceneSource::device_window`].
     pub fn device_window(&self) -> f32 {
         match self {
             Self::Tile => 11.0,
@@ -71,6 +78,10 @@ pub struct SceneOptions {
     pub sweep_filters: Vec<u8>,
     /// Queries to picture (the scene's default if empty).
     pub queries: Vec<String>,
+    /// The tile scene's point cloud (default: the committed tile) and flight.
+    pub tile: TileArgs,
+    /// The tile scene's map configuration (default: the paper's outdoor one).
+    pub tile_config: MapConfig,
 }
 
 impl Default for SceneOptions {
@@ -85,6 +96,8 @@ impl Default for SceneOptions {
             sweep_indoor: vec![100, 300, 1000, 3072],
             sweep_filters: vec![1, 3, 5],
             queries: Vec::new(),
+            tile: TileArgs::default(),
+            tile_config: MapConfig::default(),
         }
     }
 }
@@ -93,6 +106,8 @@ impl Default for SceneOptions {
 pub struct SceneSource {
     scene: Scene,
     tile: Option<Tile>,
+    /// The LiDAR's range and flying height over the tile, metres.
+    tile_flight: (f32, f32),
     houses: Option<(IndoorScene, IndoorScene)>,
     options: SceneOptions,
     seed: u64,
@@ -102,10 +117,17 @@ impl SceneSource {
     /// Load (tile) or generate (houses) the scene.
     pub fn new(scene: Scene, options: &SceneOptions, seed: u64) -> Result<Self> {
         let (tile, houses) = match scene {
-            Scene::Tile => (
-                Some(Tile::builtin().context("loading the built-in LAS tile")?),
-                None,
-            ),
+            Scene::Tile => {
+                let t = &options.tile;
+                t.check()?;
+                let tile = match &t.las {
+                    None => Tile::builtin_in(t.units).context("loading the built-in LAS tile")?,
+                    // One line: the option, the file and what is wrong with it.
+                    Some(path) => Tile::from_path(path, t.units)
+                        .map_err(|e| anyhow::anyhow!("--las {}: {e}", path.display()))?,
+                };
+                (Some(tile), None)
+            }
             Scene::Indoor => (
                 None,
                 Some((
@@ -114,9 +136,18 @@ impl SceneSource {
                 )),
             ),
         };
+        let tile_flight = match &tile {
+            Some(t) => {
+                let (range, _) = tile::scaled_sensor(t, options.tile_points);
+                let range = options.tile.range.unwrap_or(range);
+                (range, options.tile.altitude.unwrap_or(range / 5.0))
+            }
+            None => (0.0, 0.0),
+        };
         Ok(Self {
             scene,
             tile,
+            tile_flight,
             houses,
             options: options.clone(),
             seed,
@@ -136,10 +167,13 @@ impl SceneSource {
                     frames: self.options.tile_frames,
                     lidar: RangeLidar {
                         points_per_frame: budget,
+                        range_m: self.tile_flight.0,
                         ..RangeLidar::default()
                     },
+                    altitude: self.tile_flight.1,
                     seed,
                     phase: if train { 0.5 } else { 0.0 },
+                    config: self.options.tile_config,
                 };
                 tile::sequence(self.tile.as_ref().expect("tile loaded"), &run)
             }
@@ -162,6 +196,100 @@ impl SceneSource {
                 indoor::sequence(if train { training } else { test }, &run)
             }
         }
+    }
+
+    /// The tile, if this is the tile scene.
+    pub fn tile(&self) -> Option<&Tile> {
+        self.tile.as_ref()
+    }
+
+    /// The table's title: the scene, or the user's file.
+    pub fn title(&self) -> String {
+        match &self.options.tile.las {
+            Some(path) if self.scene == Scene::Tile => format!(
+                "tile {}",
+                path.file_name()
+                    .unwrap_or(path.as_os_str())
+                    .to_string_lossy()
+            ),
+            _ => self.scene.name().into(),
+        }
+    }
+
+    /// The device map's window radius: the sensor's range plus the kernel's reach (at least 1 m).
+    pub fn device_window(&self, config: &MapConfig) -> f32 {
+        match self.scene {
+            Scene::Tile => {
+                self.tile_flight.0
+                    + (f32::from(config.filter_size()) * config.voxel_size()).max(1.0)
+            }
+            Scene::Indoor => self.scene.device_window(),
+        }
+    }
+
+    /// A run needs more than D points in the training sequence (to fit the D-component PCA) and in the
+    /// test sequence: otherwise stop with one line that says what to change.
+    pub fn check_enough(&self, train: &Sequence, test: &Sequence) -> Result<()> {
+        let need = super::methods::D + 1;
+        let seen = train.points().min(test.points());
+        if seen >= need {
+            return Ok(());
+        }
+        let frames = test.frames.len();
+        match (self.scene, &self.tile) {
+            (Scene::Tile, Some(t)) => {
+                let (lo, hi) = t.bounds;
+                let (range, altitude) = self.tile_flight;
+                let advice = if altitude >= range {
+                    "lower --altitude below the range, or raise --range"
+                } else {
+                    "raise --range, --points or --frames"
+                };
+                bail!(
+                    "too sparse: the robot's LiDAR saw {seen} points in {frames} frames over {} ({:.0} × {:.0} m, {:.1} points/m², range {:.1} m, flying {:.1} m above the ground), and the {}-component feature PCA needs at least {need}: {advice}",
+                    self.title(),
+                    hi[0] - lo[0],
+                    hi[1] - lo[1],
+                    t.points.len() as f32 / t.area().max(1e-6),
+                    range,
+                    altitude,
+                    super::methods::D,
+                )
+            }
+            _ => bail!(
+                "too sparse: the camera saw {seen} points in {frames} frames, and the {}-component feature PCA needs at least {need}: raise --pixels",
+                super::methods::D
+            ),
+        }
+    }
+
+    /// When the LatentBKI map (filter size `f`) left more than 20 % of the held-out tile points in voxels
+    /// no integrated point reached, one line that says what to change: voxels about the size of the tile's
+    /// point spacing (the kernel length kept at five voxels, the paper's ratio), or more frames.
+    pub fn coverage_hint(&self, results: &[MethodResult], f: u8) -> Option<String> {
+        let (Scene::Tile, Some(t)) = (self.scene, &self.tile) else {
+            return None;
+        };
+        let r = results.iter().find(|r| r.method == Method::LatentBki(f))?;
+        let unknown = r.confusion.unknown() as f64 / r.confusion.total().max(1) as f64;
+        if unknown <= 0.2 {
+            return None;
+        }
+        let spacing = (t.area() as f64 / t.points.len().max(1) as f64).sqrt();
+        let voxel = self.options.tile_config.voxel_size();
+        let advice = if spacing > 1.5 * f64::from(voxel) {
+            let v = (spacing * 20.0).round() / 20.0;
+            format!(
+                "try --voxel-size {v:.2} --kernel-length {:.2} (about the spacing), or more --frames",
+                5.0 * v
+            )
+        } else {
+            "give more --frames or --points".to_string()
+        };
+        Some(format!(
+            "hint: {:.0} % of the held-out points fell in voxels no integrated point reached; the tile's points are ≈ {spacing:.2} m apart and the voxels {voxel} m: {advice}",
+            100.0 * unknown
+        ))
     }
 
     /// The default budget of the main run.
@@ -187,6 +315,8 @@ pub struct Report {
     pub markdown: String,
     /// PNGs written.
     pub figures: Vec<PathBuf>,
+    /// One line saying what to change when the map left most held-out points unknown.
+    pub hint: Option<String>,
 }
 
 /// Run one scene's experiment and write its pictures into `out/<scene>/`.
@@ -198,17 +328,22 @@ pub fn run(
     sweep: bool,
     link: Option<Box<dyn VoxelSink>>,
 ) -> Result<Report> {
-    let setup = &Setup {
-        device_window: scene.device_window(),
-        ..*setup
-    };
     let vocab = Vocabulary::builtin();
     let source = SceneSource::new(scene, options, setup.seed)?;
+    if let (Some(t), Some(_)) = (source.tile(), &options.tile.las) {
+        println!("{}: {}", source.title(), t.summary());
+    }
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
+    source.check_enough(&train, &test)?;
+    let setup = &Setup {
+        device_window: source.device_window(&test.config),
+        ..*setup
+    };
     let dec = experiment::decoding(&vocab, &train, setup)?;
     let frames = experiment::encode(&test, &dec, setup);
-    let methods = Method::all();
+    let f = test.config.filter_size();
+    let methods = Method::for_filter(f);
     let budgets = match scene {
         Scene::Tile => &options.sweep_tile,
         Scene::Indoor => &options.sweep_indoor,
@@ -232,7 +367,7 @@ pub fn run(
             dec: &dec,
             setup,
         },
-        Some(Method::LatentBki(3)),
+        Some(Method::LatentBki(f)),
         link,
         &sweep,
         &format!("{}: methods and sweep", scene.name()),
@@ -240,8 +375,8 @@ pub fn run(
     drop(sweep);
     let scored = &results
         .iter()
-        .find(|r| r.method == Method::LatentBki(3))
-        .expect("LatentBKI f = 3 ran")
+        .find(|r| r.method == Method::LatentBki(f))
+        .expect("LatentBKI ran at the scene's filter size")
         .scored;
     let spars = sparsification::analyse(scored, dec.classes.len());
 
@@ -251,7 +386,7 @@ pub fn run(
     let device = results
         .iter()
         .find(|r| matches!(r.method, Method::OnDevice(_)))
-        .or_else(|| results.iter().find(|r| r.method == Method::LatentBki(3)))
+        .or_else(|| results.iter().find(|r| r.method == Method::LatentBki(f)))
         .expect("a LatentBKI map ran");
     let snap = device.mapper.snapshot();
     let top = TopDown::new(&snap, &test.config, test.cutaway_height);
@@ -311,9 +446,9 @@ pub fn run(
         test.config.voxel_size(),
         test.config.kernel_length(),
     );
-    let mut md = experiment::table(&format!("Scene: {}", scene.name()), &results, &notes);
+    let mut md = experiment::table(&format!("Scene: {}", source.title()), &results, &notes);
     md += &format!(
-        "\nUncertainty of LatentBKI (f = 3) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points):\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
+        "\nUncertainty of LatentBKI (f = {f}) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points):\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
         spars.points
     );
     for (name, a, m) in &spars.ause {
@@ -339,6 +474,7 @@ pub fn run(
             }
         }
     }
+    let hint = source.coverage_hint(&results, f);
     Ok(Report {
         scene,
         results,
@@ -346,5 +482,6 @@ pub fn run(
         sweep: sweep_points,
         markdown: md,
         figures: figs,
+        hint,
     })
 }

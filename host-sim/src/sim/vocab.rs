@@ -99,6 +99,46 @@ impl Vocabulary {
     pub fn embeddings(&self, phrases: &[&str]) -> Result<Vec<[f32; FULL_DIM]>, UnknownWord> {
         phrases.iter().map(|p| self.get(p).copied()).collect()
     }
+
+    /// The clean features of a scene's classes: the text embedding of each phrase, except that a class
+    /// without a name ("class N": a reserved or user-defined ASPRS code) gets a fixed pseudo-random unit
+    /// direction seeded by its phrase ([`unnamed_class_direction`]). Such a class is mapped and decoded as
+    /// a class of its own; no text query can find it, since its name says nothing.
+    pub fn class_embeddings(&self, phrases: &[&str]) -> Result<Vec<[f32; FULL_DIM]>, UnknownWord> {
+        phrases
+            .iter()
+            .map(|p| match self.get(p) {
+                Ok(e) => Ok(*e),
+                Err(_) if is_unnamed_class(p) => Ok(unnamed_class_direction(p)),
+                Err(e) => Err(e),
+            })
+            .collect()
+    }
+}
+
+/// Whether a phrase is the placeholder name of a class without one ("class 64").
+pub fn is_unnamed_class(phrase: &str) -> bool {
+    phrase
+        .strip_prefix("class ")
+        .is_some_and(|n| n.parse::<u32>().is_ok())
+}
+
+/// The feature direction of an unnamed class: a unit vector of independent Gaussians, seeded by the
+/// phrase (so every run and every tool agrees). In 384 dimensions it is nearly orthogonal to every text
+/// embedding (|cos| ≈ 0.05), so the simulated network rarely confuses it with a named class.
+pub fn unnamed_class_direction(phrase: &str) -> [f32; FULL_DIM] {
+    use latentbki::rand_xoshiro::rand_core::SeedableRng;
+    use rand_distr::Distribution;
+    let seed = phrase
+        .bytes()
+        .fold(0x000C_1A55_u64, |h, b| super::mix(h ^ u64::from(b)));
+    let mut rng = latentbki::rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut v = [0.0f32; FULL_DIM];
+    for x in &mut v {
+        *x = rand_distr::StandardNormal.sample(&mut rng);
+    }
+    let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    v.map(|x| x / norm)
 }
 
 /// Cosine similarity of two vectors (0 if either is zero).

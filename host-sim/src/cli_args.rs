@@ -1,0 +1,101 @@
+//! Option groups that several commands share (one definition each, flattened into the commands).
+
+use crate::sim::tile::LengthUnit;
+use anyhow::Result;
+use clap::Args;
+use latentbki::{KernelMode, MapConfig, Prior};
+use std::path::PathBuf;
+
+/// The map configuration, shared by every command that builds a map.
+#[derive(Args, Debug, Clone)]
+pub struct MapArgs {
+    /// Voxel edge length in metres.
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
+    pub voxel_size: f32,
+    /// Kernel length ℓ in metres.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub kernel_length: f32,
+    /// Filter size f (odd, 1..=7): a point updates f³ voxels.
+    #[arg(long, default_value_t = 3)]
+    pub filter_size: u8,
+    /// Prior confidence λ₀.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub prior_lambda: f32,
+    /// Prior mean μ₀ (every dimension).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub prior_mean: f32,
+    /// Prior scatter Ψ₀ (every dimension).
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+    pub prior_psi: f32,
+    /// Sub-voxel kernel: cells per axis for the point's position inside its voxel (0 = voxel-offset kernel).
+    #[arg(long, default_value_t = 0)]
+    pub subvoxel_cells: u8,
+}
+
+impl MapArgs {
+    /// The validated configuration.
+    pub fn config(&self) -> Result<MapConfig> {
+        let prior = Prior {
+            lambda: self.prior_lambda,
+            mean: self.prior_mean,
+            psi: self.prior_psi,
+        };
+        let mode = KernelMode::from_subvoxel_cells(self.subvoxel_cells);
+        MapConfig::new(
+            self.voxel_size,
+            self.kernel_length,
+            self.filter_size,
+            prior,
+            mode,
+        )
+        .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
+    }
+}
+
+impl Default for MapArgs {
+    /// The command-line defaults (the paper's outdoor configuration).
+    fn default() -> Self {
+        Self {
+            voxel_size: 0.1,
+            kernel_length: 0.5,
+            filter_size: 3,
+            prior_lambda: 0.0,
+            prior_mean: 0.0,
+            prior_psi: 1.0,
+            subvoxel_cells: 0,
+        }
+    }
+}
+
+/// Which point cloud the tile scene maps and how the robot flies over it (`demo`, `eval`, `query`).
+#[derive(Args, Debug, Clone, Default, PartialEq)]
+pub struct TileArgs {
+    /// A labelled point cloud (.las or .laz, ASPRS classes) to map instead of the built-in tile.
+    #[arg(long, value_name = "FILE")]
+    pub las: Option<PathBuf>,
+    /// Units of the file's coordinates [default: from its CRS (WKT, else GeoTIFF keys); metres if it has
+    /// none].
+    #[arg(long, value_enum)]
+    pub units: Option<LengthUnit>,
+    /// Sensor range in metres [default: scaled to the tile's point density, at least 10 m].
+    #[arg(long, allow_negative_numbers = true)]
+    pub range: Option<f32>,
+    /// Flying height above the ground in metres [default: a fifth of the range].
+    #[arg(long, allow_negative_numbers = true)]
+    pub altitude: Option<f32>,
+}
+
+impl TileArgs {
+    /// Refuse ranges and heights that cannot fly.
+    pub fn check(&self) -> Result<()> {
+        for (name, v) in [("--range", self.range), ("--altitude", self.altitude)] {
+            if let Some(v) = v {
+                anyhow::ensure!(
+                    v.is_finite() && v > 0.0,
+                    "{name} must be a positive number of metres, got {v}"
+                );
+            }
+        }
+        Ok(())
+    }
+}
