@@ -28,13 +28,18 @@ pub struct Prior {
     pub psi: f32,
 }
 
+impl Prior {
+    /// λ₀ = 0, μ₀ = 0, Ψ₀ = 1.
+    pub const DEFAULT: Self = Self {
+        lambda: 0.0,
+        mean: 0.0,
+        psi: 1.0,
+    };
+}
+
 impl Default for Prior {
     fn default() -> Self {
-        Self {
-            lambda: 0.0,
-            mean: 0.0,
-            psi: 1.0,
-        }
+        Self::DEFAULT
     }
 }
 
@@ -129,11 +134,7 @@ impl MapConfig {
         voxel_size: 0.1,
         kernel_length: 0.5,
         filter_size: 3,
-        prior: Prior {
-            lambda: 0.0,
-            mean: 0.0,
-            psi: 1.0,
-        },
+        prior: Prior::DEFAULT,
         mode: KernelMode::VoxelOffset,
     };
 
@@ -150,8 +151,9 @@ impl MapConfig {
         mode: KernelMode::VoxelOffset,
     };
 
-    /// Validate and build a configuration.
-    pub fn new(
+    /// Validate and build a configuration. A `const fn`: a firmware validates its configuration at compile
+    /// time (`const MAP: MapConfig = match MapConfig::new(…) { Ok(c) => c, Err(_) => panic!(…) };`).
+    pub const fn new(
         voxel_size: f32,
         kernel_length: f32,
         filter_size: u8,

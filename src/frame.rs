@@ -214,6 +214,16 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         Ok(())
     }
 
+    /// End the session: queued voxels are dropped, nothing is sent and every voxel is refused until the
+    /// next [`Self::configure`].
+    pub fn close(&mut self) {
+        self.config = NO_SESSION;
+        self.config_id = 0;
+        self.len = 0;
+        self.entry_len = 0;
+        self.capacity = 0;
+    }
+
     /// Whether a session is configured.
     pub fn is_configured(&self) -> bool {
         self.capacity > 0

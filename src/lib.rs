@@ -9,9 +9,60 @@
 //! predictive variance and E-/D-optimality or sampling uncertainty; decoding compares μ with text embeddings
 //! of any words.
 //!
-//! The modules follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
-//! (voxel keys, poses) → [`batch`] (validate, group, spread) → [`stats`] (the update) → [`inference`]
-//! (uncertainty) → [`decode`] (open-vocabulary queries).
+//! ## A robot in ten lines
+//!
+//! [`Mapper`] is the entry point on a robot: it owns the on-device [`LocalMap`] and the [`FrameEncoder`]
+//! that streams evicted voxels to a base station, is configured once from a `const` [`Setup`] and lives in
+//! a `static` (it is all zero until configured, so it costs no flash). Per sensor frame: the pose, the
+//! points and their features in, then a byte-budgeted [`Mapper::tick`] into any [`embedded_io::Write`]
+//! (a UART, or here a buffer); [`Mapper::drain`] sends everything at the end.
+//!
+//! ```
+//! use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
+//! use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
+//! use static_cell::ConstStaticCell;
+//!
+//! const D: usize = 64; // feature dimension (PCA-compressed)
+//! // 1,024 voxels; a 4 KiB queue of evicted voxels; frames of at most 512 bytes on the wire.
+//! type Robot = Mapper<D, 1024, { packed_len(D) }, 4096, 512>;
+//!
+//! // Robot 1, session 7 (a fresh number per boot), a window of 2 m around the sensor.
+//! static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 7));
+//! static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
+//!
+//! let mapper = MAPPER.take();
+//! mapper.configure(&SETUP).expect("a valid setup");
+//!
+//! // One sensor frame: 64 points on a wall 1 m ahead, each with its feature.
+//! let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.3), UnitQuaternion::identity());
+//! let points: [[f32; 3]; 64] = core::array::from_fn(|i| [1.0, (i % 8) as f32 * 0.05, (i / 8) as f32 * 0.05]);
+//! let features = [[0.125f32; D]; 64];
+//! let taken = mapper.integrate(&pose, &points, &features);
+//!
+//! let mut link = [0u8; 4096];
+//! let mut out: &mut [u8] = &mut link;
+//! mapper.tick(&mut out, 2048).expect("room in the buffer"); // session header (nothing evicted yet)
+//! mapper.drain(&mut out).expect("room in the buffer"); // every voxel, then link statistics
+//! let sent = 4096 - out.len();
+//!
+//! assert_eq!(taken, 64);
+//! assert_eq!(mapper.map().len(), 0);
+//! assert_eq!(mapper.encoder().stats().bytes_sent as usize, sent);
+//! assert!(mapper.encoder().stats().evicted_sent > 0);
+//! ```
+//!
+//! `examples/robot.rs` is the same loop as a program to copy. The base station side reads the bytes with
+//! [`FrameDecoder`] and [`wire::parse_body`].
+//!
+//! ## Modules
+//!
+//! They follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
+//! (voxel keys, poses) → [`batch`] (validating a point) → [`obs`] (what a voxel observed, and gathering
+//! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`] (uncertainty) →
+//! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
+//! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder) →
+//! [`mapper`] (all of it as one value). [`f32math`] holds the single-precision elementary functions the
+//! device path uses.
 #![no_std]
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
@@ -29,25 +80,38 @@ pub mod inference;
 pub mod kernel;
 pub mod key;
 pub mod local_map;
+pub mod mapper;
 pub mod obs;
 pub mod quant;
 pub mod sink;
 pub mod stats;
-pub mod synth;
 pub mod wire;
 
-pub use batch::{locate, spread, Rejection, RejectionCounts};
-pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
-pub use decode::{Codebook, CodebookError, Pca};
-pub use frame::{FrameDecoder, FrameEncoder, SeqTracker};
-pub use kernel::{sparse_kernel, KernelLut};
-pub use key::{to_map_frame, VoxelKey};
+// ----- on the robot
+pub use frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
 pub use local_map::LocalMap;
-pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
+pub use mapper::{DrainError, Mapper, Setup, SetupError};
 pub use quant::packed_len;
+
+// ----- configuration
+pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
+
+// ----- voxels, points and what the map does with them
+pub use batch::{Rejection, RejectionCounts};
+pub use key::{to_map_frame, VoxelKey};
 pub use sink::{Evicted, EvictionSink, SinkFull};
+
+// ----- statistics and posteriors (the base station and the simulator share them with the device)
+pub use kernel::KernelLut;
+pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
 pub use stats::VoxelStats;
+
+// ----- the base station's side of the link
+pub use frame::{FrameDecoder, SeqTracker};
 pub use wire::{SessionConfig, SummaryCodec};
+
+// ----- open-vocabulary queries
+pub use decode::{Codebook, CodebookError, Pca};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;

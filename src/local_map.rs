@@ -612,7 +612,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
 
     /// Integrate one batch of sensor-frame points seen from `pose` (sensor → map): the window follows the
     /// sensor, then every point. Returns the number of points integrated; the others are counted in
-    /// [`Self::rejections`].
+    /// [`Self::rejections`]. (A firmware does this through [`crate::Mapper`], which owns the sink too.)
     pub fn integrate<S: EvictionSink<D>>(
         &mut self,
         pose: &Isometry3<f32>,
@@ -622,6 +622,18 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     ) -> usize {
         let t = pose.translation.vector;
         self.move_window([t.x, t.y, t.z], sink);
+        self.add_points(pose, points, features, sink)
+    }
+
+    /// Add sensor-frame points seen from `pose` without moving the window (one chunk of a frame). Returns
+    /// the number integrated; the others are counted in [`Self::rejections`].
+    pub fn add_points<S: EvictionSink<D>>(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        features: &[[f32; D]],
+        sink: &mut S,
+    ) -> usize {
         let mut taken = 0;
         for (p, y) in points.iter().zip(features) {
             // A refusal is counted in `rejections`.
@@ -692,10 +704,6 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         e.referenced = true;
         Ok(())
     }
-
-    /// End of a batch. Nothing is deferred — every accepted point is already in its voxel — so this does
-    /// nothing; it remains so that callers written for batch-deferring maps keep their shape.
-    pub fn end_batch<S: EvictionSink<D>>(&mut self, _sink: &mut S) {}
 
     // ----- reading -----------------------------------------------------------------------------------
 

@@ -116,6 +116,9 @@ impl SummaryCodec {
     }
 }
 
+/// [`SessionConfig::feature_space`] of features that are not tied to a PCA (e.g. a self-test's codebook).
+pub const NO_FEATURE_SPACE: u32 = 0;
+
 /// Everything two maps must agree on before their summaries can be merged. Sent in the session header;
 /// its CRC-32 ([`Self::id`]) is in every frame header.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -139,7 +142,7 @@ pub struct SessionConfig {
     /// How summaries are quantized.
     pub codec: SummaryCodec,
     /// Id of the feature space (the PCA the features were compressed with): [`feature_space_id`];
-    /// 0 = features are not PCA-compressed.
+    /// [`NO_FEATURE_SPACE`] = features are not PCA-compressed.
     pub feature_space: u32,
 }
 

@@ -2,17 +2,17 @@
 //!
 //! A point accumulates into its voxel's hot f32 statistics; a voxel is quantized (decoded, merged,
 //! re-encoded) only when it cools — when another voxel needs its hot entry. This runs the firmware
-//! self-test's 4,096-point depth frames (`synth::SELF_TEST[1]`; a point updates one voxel whatever f is)
+//! self-test's 4,096-point depth frames (`latentbki_selftest::SELF_TEST[1]`; a point updates one voxel whatever f is)
 //! through maps that differ only in `H` and prints how many voxels cooled per 1,000 points, and the hot
 //! tier's size. Deterministic: counts, not timings.
 //! Run: `cargo run --release -p host-sim --example hot_sweep`.
 
-use latentbki::synth::SELF_TEST;
+use latentbki_selftest::SELF_TEST;
 use latentbki::{packed_len, to_map_frame, Evicted, LocalMap, ObsStats, SinkFull};
 
 const D: usize = 64;
 const P: usize = packed_len(D);
-const CAP: usize = latentbki::synth::SELF_TEST_CAPACITY;
+const CAP: usize = latentbki_selftest::SELF_TEST_CAPACITY;
 
 fn discard(_: Evicted<'_, D>) -> Result<(), SinkFull> {
     Ok(())

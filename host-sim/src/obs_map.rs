@@ -11,8 +11,9 @@
 //! refused at construction ([`ObsMapError::SubVoxelKernel`]) — [`crate::ReferenceMap`] keeps that mode.
 
 use latentbki::nalgebra::Isometry3;
+use latentbki::batch::locate;
 use latentbki::{
-    locate, to_map_frame, ConfigError, GatherError, KernelLut, MapConfig, ObsLookup, ObsStats,
+    to_map_frame, ConfigError, GatherError, KernelLut, MapConfig, ObsLookup, ObsStats,
     Prior, RejectionCounts, VoxelKey, VoxelStats,
 };
 use rustc_hash::FxHashMap;

@@ -1,6 +1,7 @@
 //! End to end on an emulated Cortex-M4F: the firmware in `boards/qemu-mps2-an386` runs the self-test
-//! (`latentbki::synth::SELF_TEST`) in QEMU with UART0 captured to a file; the host twin runs the same core
-//! code (`synth::run` with the same scenarios, map capacity, encoder sizes and seeds) and must produce the
+//! (`latentbki_selftest::SELF_TEST`) in QEMU with UART0 captured to a file; the host twin runs the same core
+//! code (`latentbki_selftest::run` on the same `Mapper`, scenarios, map capacity, encoder sizes and seeds)
+//! and must produce the
 //! same bytes. Both streams are decoded (COBS + CRC frames, wire summaries) into global maps that must be
 //! equal, non-trivial and semantically right (voxels decode to the category of the surface they lie on).
 //!
@@ -8,12 +9,12 @@
 //! board directory). Without `qemu-system-arm` the test is skipped with a message — except in CI
 //! (`CI=true`), where it must run.
 
-use latentbki::frame::{FrameDecoder, FrameEncoder};
+use latentbki::frame::FrameDecoder;
 use latentbki::key::{to_map_frame, VoxelKey};
-use latentbki::local_map::LocalMap;
 use latentbki::quant::packed_len;
-use latentbki::synth::{
-    self, CategoryVectors, Chunk, Scenario, CATEGORIES, SELF_TEST, SELF_TEST_CAPACITY,
+use latentbki::Mapper;
+use latentbki_selftest::{
+    self as selftest, CategoryVectors, Chunk, Scenario, CATEGORIES, SELF_TEST, SELF_TEST_CAPACITY,
     SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,
 };
 use latentbki::wire::{parse_body, Message, SessionConfig};
@@ -24,8 +25,7 @@ use std::process::Command;
 
 const D: usize = 64;
 const P: usize = packed_len(D);
-type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
-type Encoder = FrameEncoder<D, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
+type Robot = Mapper<D, SELF_TEST_CAPACITY, P, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
 
 fn board_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../boards/qemu-mps2-an386")
@@ -81,32 +81,24 @@ fn run_firmware(elf: &Path) -> (Vec<u8>, String) {
 /// (per voxel, how many points of each category fell in it).
 struct Twin {
     bytes: Vec<u8>,
-    reports: Vec<synth::RunReport>,
+    reports: Vec<selftest::RunReport>,
     truth: Vec<BTreeMap<VoxelKey, [u32; CATEGORIES]>>,
 }
 
 fn twin() -> Twin {
-    let mut map: Box<Map> = Box::new(Map::EMPTY);
+    // One mapper for all scenarios, reconfigured in place as the firmware does with its static.
+    let mut mapper: Box<Robot> = Box::new(Robot::EMPTY);
     let mut chunk = Box::new(Chunk::<D, 16>::ZERO);
     let mut buf = vec![0u8; 8 << 20];
     let capacity = buf.len();
     let mut out: &mut [u8] = &mut buf[..];
-    // One encoder for all scenarios, reconfigured in place as the firmware does with its static.
-    let mut encoder: Box<Encoder> = Box::new(Encoder::EMPTY);
     let mut reports = Vec::new();
     let mut truth = Vec::new();
     for scenario in &SELF_TEST {
-        scenario.configure(&mut map).unwrap();
-        encoder
-            .configure(
-                scenario.session_config(D).unwrap(),
-                scenario.encoder_settings(),
-            )
-            .unwrap();
-        let r = synth::run(
+        scenario.configure(&mut mapper).unwrap();
+        let r = selftest::run(
             scenario,
-            &mut map,
-            &mut encoder,
+            &mut mapper,
             &mut chunk,
             &mut out,
             &mut (),
@@ -262,7 +254,7 @@ fn firmware_in_qemu_streams_the_map_the_host_twin_computes() {
 
     // Semantics: a voxel's observed mean decodes to the category most of its points had.
     let s = 1;
-    let id = SELF_TEST[s].session_config(D).unwrap().id();
+    let id = SELF_TEST[s].setup().unwrap().session(D).id();
     let (_, global) = &fw_maps[&id];
     let (mut right, mut total) = (0, 0);
     for (key, counts) in &twin.truth[s] {

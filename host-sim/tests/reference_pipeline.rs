@@ -4,7 +4,8 @@
 
 use host_sim::ReferenceMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::{sparse_kernel, to_map_frame, KernelMode, MapConfig, Prior, VoxelKey};
+use latentbki::kernel::sparse_kernel;
+use latentbki::{to_map_frame, KernelMode, MapConfig, Prior, VoxelKey};
 use proptest::prelude::*;
 use std::collections::BTreeMap;
 

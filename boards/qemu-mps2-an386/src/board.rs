@@ -141,7 +141,7 @@ pub mod stack {
 /// and the next stop, sums the regions, and logs the sum at each report marker.
 pub struct Markers;
 
-impl latentbki::synth::Probe for Markers {
+impl latentbki_selftest::Probe for Markers {
     #[inline(always)]
     fn start(&mut self) {
         // SAFETY: an architectural NOP hint; no memory, stack or flags touched.

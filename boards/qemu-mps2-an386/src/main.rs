@@ -1,9 +1,9 @@
 //! LatentBKI firmware for QEMU `mps2-an386` (Cortex-M4F with FPU).
 //!
-//! Runs the self-test ([`latentbki::synth::SELF_TEST`]) on the device: a synthetic room seen by a moving
+//! Runs the self-test ([`latentbki_selftest::SELF_TEST`]) on the device: a synthetic room seen by a moving
 //! 8×8 ToF and by a 64×64 depth camera, features from the compiled-in codebook plus noise, integrated into a
 //! quantized `LocalMap` in a static, evicted voxels streamed as frames over UART0 by the core's
-//! `FrameEncoder`. The host twin (`host-sim/tests/firmware_qemu.rs`) runs the same core code and compares.
+//! `FrameEncoder` — both owned by the core's `Mapper`, the same loop any firmware runs. The host twin (`host-sim/tests/firmware_qemu.rs`) runs the same core code and compares.
 //!
 //! UART0 carries only frames. Human-readable results go to semihosting stdout (one `frame …` line per
 //! frame, one `scenario …` line per scenario, then `stack …` and `done`); the exit code says how it went.
@@ -27,11 +27,11 @@ macro_rules! report {
 }
 
 use board::{exit, exit_code, Markers, Uart};
-use latentbki::frame::FrameEncoder;
 use latentbki::local_map::LocalMap;
 use latentbki::quant::packed_len;
-use latentbki::synth::{
-    self, Chunk, FrameReport, RunError, Scenario, SELF_TEST, SELF_TEST_CAPACITY,
+use latentbki::Mapper;
+use latentbki_selftest::{
+    self as selftest, Chunk, FrameReport, RunError, Scenario, SELF_TEST, SELF_TEST_CAPACITY,
     SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,
 };
 use static_cell::ConstStaticCell;
@@ -46,27 +46,22 @@ const P: usize = packed_len(D);
 const K: usize = 16;
 
 type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
-type Encoder = FrameEncoder<D, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
+type Robot = Mapper<D, SELF_TEST_CAPACITY, P, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
 
-/// The map lives in a static (≈ 150 KiB); never on the stack.
-static MAP: ConstStaticCell<Map> = ConstStaticCell::new(Map::EMPTY);
+/// The map and the encoder (≈ 170 KiB) live in a static (`.bss`), reconfigured in place for each
+/// scenario; never on the stack.
+static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
 static CHUNK: ConstStaticCell<Chunk<D, K>> = ConstStaticCell::new(Chunk::ZERO);
-
-/// The encoder (≈ 5 KiB of queue and frame buffers) also lives in a static (`.bss`), reconfigured in place
-/// for each scenario.
-static ENCODER: ConstStaticCell<Encoder> = ConstStaticCell::new(Encoder::EMPTY);
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
     // `main` runs once, so each static is taken exactly once (`try_take`: no panic path).
-    let (Some(map), Some(chunk), Some(encoder)) =
-        (MAP.try_take(), CHUNK.try_take(), ENCODER.try_take())
-    else {
+    let (Some(mapper), Some(chunk)) = (MAPPER.try_take(), CHUNK.try_take()) else {
         exit(exit_code::FAILED)
     };
     let mut uart = Uart::uart0();
     for (s, scenario) in SELF_TEST.iter().enumerate() {
-        if let Err(code) = run_scenario(s, scenario, map, chunk, encoder, &mut uart) {
+        if let Err(code) = run_scenario(s, scenario, mapper, chunk, &mut uart) {
             exit(code)
         }
     }
@@ -89,12 +84,11 @@ fn main() -> ! {
 fn run_scenario(
     s: usize,
     scenario: &Scenario,
-    map: &mut Map,
+    mapper: &mut Robot,
     chunk: &mut Chunk<D, K>,
-    encoder: &mut Encoder,
     uart: &mut Uart,
 ) -> Result<(), i32> {
-    configure(scenario, map, encoder)?;
+    configure(scenario, mapper)?;
     let setup_stack = board::stack::high_water();
     // From here on: the integrate-and-stream loop. Its own stack high-water mark is measured from a fresh
     // paint (the whole-run mark above includes the one-time set-up; see README "Firmware").
@@ -122,7 +116,7 @@ fn run_scenario(
             );
         }
     };
-    let r = match synth::run(scenario, map, encoder, chunk, uart, &mut Markers, on_frame) {
+    let r = match selftest::run(scenario, mapper, chunk, uart, &mut Markers, on_frame) {
         Ok(r) => r,
         Err(RunError::Config(_) | RunError::NotConfigured | RunError::Stuck) => {
             return Err(exit_code::FAILED)
@@ -145,7 +139,7 @@ fn run_scenario(
         r.points,
         r.integrated,
         r.peak_voxels,
-        map.capacity(),
+        mapper.map().capacity(),
         r.counters.evicted,
         r.counters.refused,
         r.flushed,
@@ -168,10 +162,8 @@ fn run_scenario(
 /// Configure the map (its kernel table is rebuilt in place) and start the encoder's session in place: no
 /// table- or buffer-sized value is built on the stack. Kept out of the loop's frame.
 #[inline(never)]
-fn configure(scenario: &Scenario, map: &mut Map, encoder: &mut Encoder) -> Result<(), i32> {
-    scenario.configure(map).map_err(|_| exit_code::FAILED)?;
-    let session = scenario.session_config(D).map_err(|_| exit_code::FAILED)?;
-    encoder
-        .configure(session, scenario.encoder_settings())
+fn configure(scenario: &Scenario, mapper: &mut Robot) -> Result<(), i32> {
+    scenario
+        .configure(mapper)
         .map_err(|_| exit_code::FAILED)
 }

@@ -2,38 +2,43 @@
 //!
 //! The same loop as the QEMU firmware, wired to real peripherals: a VL53L5CX-style 8×8 ToF on I2C1
 //! (PB8 = SCL, PB9 = SDA, 400 kHz) gives ranges; each valid zone becomes a point along its ray
-//! ([`latentbki::synth::DepthSensor::TOF_8X8`] geometry); the quantized `LocalMap` lives in a static; evicted
-//! voxels stream as frames on USART3 (PD8, the ST-LINK virtual COM port, 921,600 Bd) through the core's
-//! `FrameEncoder`. Flash with `cargo run --release` (probe-rs).
+//! ([`vl53l5cx::zone_ray`]); the core's `Mapper` (the quantized `LocalMap` and the `FrameEncoder`) lives in
+//! a static; evicted voxels stream as frames on USART3 (PD8, the ST-LINK virtual COM port, 921,600 Bd).
+//! Flash with `cargo run --release` (probe-rs).
 //!
 //! Stubbed, and why: the ToF firmware blob is ST's and not shipped (see `vl53l5cx.rs`; the board reports
-//! and keeps retrying); there is no camera, so every point carries the codebook's first category vector
-//! as its feature (a real robot gets features from its vision model); there is no odometry, so the pose
+//! and keeps retrying); there is no camera, so every point carries one fixed unit vector as its feature (a real robot gets features from its vision model); there is no odometry, so the pose
 //! is fixed (a real robot passes its pose estimate).
 #![no_std]
 #![no_main]
 
 mod vl53l5cx;
 
-use latentbki::frame::{EncoderSettings, FrameEncoder};
 use latentbki::local_map::LocalMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::quant::packed_len;
-use latentbki::synth::{CategoryVectors, DepthSensor, SELF_TEST_CAPACITY};
-use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{to_map_frame, MapConfig};
+use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
 use static_cell::ConstStaticCell;
 use stm32f4xx_hal::{i2c::I2c, pac, prelude::*};
-use vl53l5cx::{MultizoneRanger, Vl53l5cx, ZoneFrame, ZONES};
+use vl53l5cx::{zone_ray, MultizoneRanger, Vl53l5cx, ZoneFrame, ZONES};
 
 const D: usize = 64;
 const P: usize = packed_len(D);
-type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
-type Encoder = FrameEncoder<D, 4096, 512>;
+/// RAM for the map's voxels (slots and index): 192 KiB less stack, the encoder and the HAL.
+const MAP_BUDGET: usize = 144 * 1024;
+const CAP: usize = MAP_BUDGET / LocalMap::<D, 1, P>::BYTES_PER_VOXEL;
+type Robot = Mapper<D, CAP, P, 4096, 512>;
 
-static MAP: ConstStaticCell<Map> = ConstStaticCell::new(Map::EMPTY);
-/// The encoder (queue and frame buffers, ≈ 5 KiB) in `.bss` too, configured in place (never on the stack).
-static ENCODER: ConstStaticCell<Encoder> = ConstStaticCell::new(Encoder::EMPTY);
+/// Robot 1, session 1, a 2 m window around the sensor, 0.1 m voxels, ℓ = 0.5 m, f = 3.
+static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1));
+/// The map and the encoder (≈ 170 KiB) in `.bss`, configured in place (never on the stack).
+static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
+
+/// The feature every point carries until a vision model provides one: a fixed unit vector.
+const FEATURE: [f32; D] = {
+    let mut f = [0.0; D];
+    f[0] = 1.0;
+    f
+};
 
 /// The HAL's UART speaks embedded-io 0.6; the core's encoder writes through embedded-io 0.7.
 struct Uart<W>(W);
@@ -73,17 +78,8 @@ fn main() -> ! {
     let i2c = I2c::new(dp.I2C1, (gpiob.pb8, gpiob.pb9), 400.kHz(), &clocks);
     let mut tof = Vl53l5cx::new(i2c, vl53l5cx::DEFAULT_ADDRESS);
 
-    let config = MapConfig::DEFAULT;
-    let map = MAP.take();
-    if map.configure(config, 2.0).is_err() {
-        halt()
-    }
-    let session = SessionConfig::new(&config, D, SummaryCodec::DEFAULT, 0);
-    let encoder = ENCODER.take();
-    if encoder
-        .configure(session, EncoderSettings::new(1, 1))
-        .is_err()
-    {
+    let mapper = MAPPER.take();
+    if mapper.configure(&SETUP).is_err() {
         halt()
     }
 
@@ -92,25 +88,20 @@ fn main() -> ! {
         cortex_m::asm::delay(168_000_000);
     }
     let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.3), UnitQuaternion::identity());
-    let sensor = DepthSensor::TOF_8X8;
-    let feature = &CategoryVectors::<D>::VECTORS[0];
     let mut frame = ZoneFrame::EMPTY;
     loop {
         if !matches!(tof.data_ready(), Ok(true)) || tof.read_frame(&mut frame).is_err() {
             continue;
         }
-        // One batch per frame, as `LocalMap::integrate` does it, without a 64 × 256-byte feature buffer.
-        let t = pose.translation.vector;
-        map.move_window([t.x, t.y, t.z], encoder);
+        // One sensor frame, a point at a time (no 64 × 256-byte feature buffer).
+        let mut batch = mapper.begin_frame(&pose);
         for z in (0..ZONES).filter(|&z| frame.valid(z)) {
             let r = f32::from(frame.distance_mm[z]) * 1e-3;
-            let ray = sensor.ray(z as u32);
-            let p = to_map_frame(&pose, [ray[0] * r, ray[1] * r, ray[2] * r]);
-            let _ = map.add_point(p, feature, encoder); // refusals are counted by the map
+            let ray = zone_ray(z);
+            let _ = batch.add_point([ray[0] * r, ray[1] * r, ray[2] * r], &FEATURE); // refusals are counted
         }
-        map.end_batch(encoder);
         // 921,600 Bd at 15 frames/s ≈ 6 kB per frame.
-        let _ = encoder.tick(&mut uart, 6000, core::iter::empty());
+        let _ = mapper.tick(&mut uart, 6000);
     }
 }
 

@@ -14,18 +14,25 @@
 //! - **f32 only, explicit libm**: the same inputs give the same bits on a Cortex-M4F and on a desktop.
 //!   Only IEEE-exact operations (+ − × ÷ √, floor) are used (sin and cos by a short f32 polynomial), and a
 //!   point's sensor-frame coordinates are `range × ray`, so no rotation round-off enters the input.
-//! - **Same loop on both sides**: [`integrate_frame`] is the firmware's integrate path and the twin's; a
-//!   [`Probe`] brackets the map's work so the firmware can count instructions around exactly that.
+//! - **Same loop on both sides**: [`run`] drives the core's [`Mapper`] (the one integrate-and-stream loop
+//!   every firmware uses) on the firmware and in the twin; a [`Probe`] brackets the map's work so the
+//!   firmware can count instructions around exactly that.
+//!
+//! It is an application of the core, not part of it: its own crate, used by the QEMU firmware, the host
+//! twin (`host-sim/tests/firmware_qemu.rs`) and host-sim's examples.
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::batch::RejectionCounts;
-use crate::config::{ConfigError, KernelMode, MapConfig, Prior};
-use crate::f32math::sin_cos;
-use crate::frame::{EncoderSettings, FrameEncoder, TickError};
-use crate::key::to_map_frame;
-use crate::local_map::{Counters, LocalMap};
-use crate::sink::{Evicted, EvictionSink};
-use crate::wire::{LinkStats, SessionConfig, SummaryCodec};
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
+use latentbki::batch::RejectionCounts;
+use latentbki::config::{ConfigError, KernelMode, MapConfig, Prior};
+use latentbki::f32math::sin_cos;
+use latentbki::frame::EncoderSettings;
+use latentbki::local_map::{Counters, LocalMap};
+use latentbki::mapper::{DrainError, Mapper, Setup, SetupError};
+use latentbki::nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
+use latentbki::wire::LinkStats;
 
 /// Number of categories in the room (and vectors in the codebook).
 pub const CATEGORIES: usize = 6;
@@ -421,28 +428,29 @@ pub struct FrameReport {
     pub integrated: u32,
 }
 
-/// Generate frame `frame` of `scene` in chunks of `K` points and integrate it into `map` as one batch,
-/// exactly as [`LocalMap::integrate`] would (window move, every point, end of batch). The map's work —
-/// and only it — runs between `probe.start()` and `probe.stop()` (once for the window move, once per
-/// chunk, once for the end of the batch).
-pub fn integrate_frame<const D: usize, const CAP: usize, const P: usize, const K: usize, S, M>(
+/// Generate frame `frame` of `scene` in chunks of `K` points and integrate it into `mapper` as one sensor
+/// frame ([`Mapper::begin_frame`], then each chunk). The map's work — and only it — runs between
+/// `probe.start()` and `probe.stop()` (once for the window move, once per chunk).
+pub fn integrate_frame<
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const QB: usize,
+    const N: usize,
+    const K: usize,
+    M: Probe,
+>(
     scene: &Scene,
     frame: u32,
-    map: &mut LocalMap<D, CAP, P>,
+    mapper: &mut Mapper<D, CAP, P, QB, N>,
     chunk: &mut Chunk<D, K>,
-    sink: &mut S,
     probe: &mut M,
-) -> FrameReport
-where
-    S: EvictionSink<D>,
-    M: Probe,
-{
+) -> FrameReport {
     let view = scene.view(frame);
-    let pose = view.pose();
     let mut report = FrameReport::default();
-    let before = map.counters().points;
+    let before = mapper.map().counters().points;
     probe.start();
-    map.move_window(view.origin, sink);
+    let mut batch = mapper.begin_frame(&view.pose());
     probe.stop();
     let zones = scene.sensor.zones();
     let mut zone = 0;
@@ -457,17 +465,11 @@ where
         }
         report.points += n as u32;
         probe.start();
-        for (p, y) in chunk.points[..n].iter().zip(&chunk.features[..n]) {
-            // Refusals are counted by the map (`rejections`).
-            let _ = map.add_point(to_map_frame(&pose, *p), y, sink);
-        }
+        // Refusals are counted by the map (`rejections`).
+        batch.add_points(&chunk.points[..n], &chunk.features[..n]);
         probe.stop();
     }
-    probe.start();
-    map.end_batch(sink);
-    probe.stop();
-    // Points a full pool refused at the end of the batch are taken back out of the map's count.
-    report.integrated = map.counters().points.wrapping_sub(before);
+    report.integrated = batch.map().counters().points.wrapping_sub(before);
     report
 }
 
@@ -496,7 +498,7 @@ pub const SELF_TEST_MAP_BUDGET: usize = 144 * 1024;
 /// Voxels the self-test map holds at D = 64: what [`SELF_TEST_MAP_BUDGET`] buys at the current bytes per
 /// voxel.
 pub const SELF_TEST_CAPACITY: usize =
-    SELF_TEST_MAP_BUDGET / LocalMap::<64, 1, { crate::quant::packed_len(64) }>::BYTES_PER_VOXEL;
+    SELF_TEST_MAP_BUDGET / LocalMap::<64, 1, { latentbki::quant::packed_len(64) }>::BYTES_PER_VOXEL;
 /// Bytes of the encoder's queue of evicted voxels.
 pub const SELF_TEST_QUEUE_BYTES: usize = 4096;
 /// Largest frame on the wire.
@@ -552,27 +554,22 @@ impl Scenario {
         )
     }
 
-    /// The session configuration on the wire (default codec, no PCA).
-    pub fn session_config(&self, dim: usize) -> Result<SessionConfig, ConfigError> {
-        Ok(SessionConfig::new(
-            &self.map_config()?,
-            dim,
-            SummaryCodec::DEFAULT,
-            0,
+    /// The mapper's setup: this map, robot [`SELF_TEST_ROBOT`] with the scenario's session, default codec,
+    /// no PCA.
+    pub fn setup(&self) -> Result<Setup, ConfigError> {
+        Ok(Setup::new(
+            self.map_config()?,
+            self.window_radius,
+            EncoderSettings::new(SELF_TEST_ROBOT, self.session),
         ))
     }
 
-    /// Clear `map` and configure it for this scenario.
-    pub fn configure<const D: usize, const CAP: usize, const P: usize>(
+    /// Clear `mapper` and configure it for this scenario (in place).
+    pub fn configure<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>(
         &self,
-        map: &mut LocalMap<D, CAP, P>,
-    ) -> Result<(), ConfigError> {
-        map.configure(self.map_config()?, self.window_radius)
-    }
-
-    /// The encoder settings (robot, session).
-    pub fn encoder_settings(&self) -> EncoderSettings {
-        EncoderSettings::new(SELF_TEST_ROBOT, self.session)
+        mapper: &mut Mapper<D, CAP, P, QB, N>,
+    ) -> Result<(), SetupError> {
+        mapper.configure(&self.setup().map_err(SetupError::Map)?)
     }
 }
 
@@ -595,26 +592,23 @@ pub struct RunReport {
     pub link: LinkStats,
 }
 
-/// Run a scenario on a map configured with [`Scenario::map_config`] and [`Scenario::window_radius`]
-/// (see [`Scenario::configure`]): integrate every frame (the map's work bracketed by `probe`), after each
-/// frame let `encoder` spend the scenario's byte budget on `w`, and at the end flush the map and send
-/// everything queued plus a final link-statistics frame. `on_frame` sees each frame's report (the firmware
-/// logs it and marks the end of the frame for the instruction counter). `encoder` must have a fresh session
-/// from [`Scenario::session_config`] and [`Scenario::encoder_settings`] ([`FrameEncoder::configure`], in
-/// place, or [`FrameEncoder::new`]).
+/// Run a scenario on a mapper freshly configured for it ([`Scenario::configure`]): integrate every frame
+/// (the map's work bracketed by `probe`), after each frame let the mapper spend the scenario's byte budget
+/// on `w`, and at the end drain it ([`Mapper::drain`]: every voxel, then a link-statistics frame).
+/// `on_frame` sees each frame's report (the firmware logs it and marks the end of the frame for the
+/// instruction counter).
 pub fn run<
     const D: usize,
     const CAP: usize,
     const P: usize,
-    const K: usize,
     const QB: usize,
     const N: usize,
+    const K: usize,
     W,
     M,
 >(
     scenario: &Scenario,
-    map: &mut LocalMap<D, CAP, P>,
-    encoder: &mut FrameEncoder<D, QB, N>,
+    mapper: &mut Mapper<D, CAP, P, QB, N>,
     chunk: &mut Chunk<D, K>,
     w: &mut W,
     probe: &mut M,
@@ -625,51 +619,29 @@ where
     M: Probe,
 {
     let config = scenario.map_config().map_err(RunError::Config)?;
-    if map.config() != &config || !map.is_empty() || map.counters() != Counters::default() {
+    let map = mapper.map();
+    let fresh = map.config() == &config && map.is_empty() && map.counters() == Counters::default();
+    if !fresh || !mapper.encoder().is_configured() || mapper.encoder().next_seq() != 0 {
         return Err(RunError::NotConfigured);
     }
-    let none = || core::iter::empty::<Evicted<'_, D>>();
     let mut report = RunReport::default();
     for frame in 0..scenario.frames {
-        let f = integrate_frame(&scenario.scene, frame, map, chunk, encoder, probe);
+        let f = integrate_frame(&scenario.scene, frame, mapper, chunk, probe);
         report.points += f.points;
         report.integrated += f.integrated;
-        report.peak_voxels = report.peak_voxels.max(map.len() as u32);
-        on_frame(frame, &f, map);
-        encoder
-            .tick(w, scenario.tick_budget, none())
-            .map_err(RunError::from)?;
+        report.peak_voxels = report.peak_voxels.max(mapper.map().len() as u32);
+        on_frame(frame, &f, mapper.map());
+        mapper
+            .tick(w, scenario.tick_budget)
+            .map_err(|latentbki::frame::TickError::Write(e, _)| RunError::Write(e))?;
     }
-    // Flush: the queue refuses when full, so alternate flushing and sending until the map is empty.
-    loop {
-        match map.flush(encoder) {
-            Ok(n) => {
-                report.flushed += n as u32;
-                break;
-            }
-            Err(n) => {
-                report.flushed += n as u32;
-                let t = encoder
-                    .tick(w, usize::MAX, none())
-                    .map_err(RunError::from)?;
-                if t.evicted_sent == 0 {
-                    return Err(RunError::Stuck);
-                }
-            }
-        }
-    }
-    while encoder.queued() > 0 {
-        let t = encoder
-            .tick(w, usize::MAX, none())
-            .map_err(RunError::from)?;
-        if t.evicted_sent == 0 {
-            return Err(RunError::Stuck);
-        }
-    }
-    encoder.send_stats(w).map_err(RunError::Write)?;
-    report.rejections = map.rejections();
-    report.counters = map.counters();
-    report.link = encoder.stats();
+    report.flushed = mapper.drain(w).map_err(|e| match e {
+        DrainError::Write(e) => RunError::Write(e),
+        DrainError::Stuck => RunError::Stuck,
+    })?;
+    report.rejections = mapper.map().rejections();
+    report.counters = mapper.map().counters();
+    report.link = mapper.encoder().stats();
     Ok(report)
 }
 
@@ -678,7 +650,7 @@ where
 pub enum RunError<E> {
     /// The scenario's map configuration is invalid.
     Config(ConfigError),
-    /// The map was not freshly configured for this scenario.
+    /// The mapper was not freshly configured for this scenario.
     NotConfigured,
     /// The writer failed.
     Write(E),
@@ -686,20 +658,11 @@ pub enum RunError<E> {
     Stuck,
 }
 
-impl<E> From<TickError<E>> for RunError<E> {
-    fn from(e: TickError<E>) -> Self {
-        match e {
-            TickError::Write(e, _) => Self::Write(e),
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::MapConfig;
-    use crate::quant::packed_len;
-    use crate::sink::Evicted;
+    use latentbki::quant::packed_len;
+    use latentbki::to_map_frame;
 
     #[test]
     fn normal_has_unit_moments() {
@@ -808,39 +771,54 @@ mod tests {
         );
     }
 
+    /// Collects the link's bytes.
+    struct Bytes(Vec<u8>);
+    impl embedded_io::ErrorType for Bytes {
+        type Error = core::convert::Infallible;
+    }
+    impl embedded_io::Write for Bytes {
+        fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+            self.0.extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> Result<(), Self::Error> {
+            Ok(())
+        }
+    }
+
     #[test]
     fn generation_is_deterministic_and_chunking_does_not_matter() {
         const P: usize = packed_len(16);
-        type Map = LocalMap<16, 600, P>;
+        type Small = Mapper<16, 600, P, 4096, 512>;
         let scene = Scene::new(DepthSensor::TOF_8X8, 9);
         let run = |chunk_points: usize| {
-            let mut map = Box::new(Map::EMPTY);
-            map.configure(MapConfig::default(), 1.5).unwrap();
-            let mut out: Vec<(i32, u32, f32)> = Vec::new();
-            let mut sink = |e: Evicted<'_, 16>| {
-                out.push((e.key.x, e.residency, e.obs.count));
-                Ok(())
-            };
+            let mut mapper = Box::new(Small::EMPTY);
+            let setup = Setup::new(MapConfig::default(), 1.5, EncoderSettings::new(1, 1));
+            mapper.configure(&setup).unwrap();
+            let mut out = Bytes(Vec::new());
             let mut reports = Vec::new();
             for frame in 0..20 {
                 reports.push(if chunk_points == 5 {
                     let mut c = Box::new(Chunk5::ZERO);
-                    integrate_frame(&scene, frame, &mut map, &mut c, &mut sink, &mut ())
+                    integrate_frame(&scene, frame, &mut mapper, &mut c, &mut ())
                 } else {
                     let mut c = Box::new(Chunk64::ZERO);
-                    integrate_frame(&scene, frame, &mut map, &mut c, &mut sink, &mut ())
+                    integrate_frame(&scene, frame, &mut mapper, &mut c, &mut ())
                 });
+                mapper.tick(&mut out, 2048).unwrap();
             }
-            map.flush(&mut sink).unwrap();
-            (out, reports)
+            let evicted = mapper.map().counters().evicted;
+            mapper.drain(&mut out).unwrap();
+            (out.0, reports, evicted)
         };
-        let (a, ra) = run(5);
-        let (b, rb) = run(64);
+        let (a, ra, evicted) = run(5);
+        let (b, rb, _) = run(64);
         assert_eq!(ra, rb);
         assert!(ra.iter().all(|r| r.points == 64), "{ra:?}");
         assert!(ra.iter().map(|r| r.integrated).sum::<u32>() > 600, "{ra:?}");
-        assert!(a.len() > 100, "the window and the pool evict: {}", a.len());
-        assert_eq!(a, b);
+        assert!(evicted > 100, "the window and the pool evict: {evicted}");
+        assert!(a.len() > 4000, "frames were sent: {} B", a.len());
+        assert_eq!(a, b, "the same bytes on the link");
     }
 
     extern crate std;

@@ -1,0 +1,210 @@
+//! The firmware's entry point: a local map and the frame encoder that streams what it evicts, as one value.
+//!
+//! A robot's loop is always the same — configure once, then per sensor frame: pose, points and features in,
+//! a byte-budgeted send; at the end, everything out. [`Mapper`] owns the two pieces that loop needs
+//! ([`LocalMap`] and [`FrameEncoder`], the encoder being the map's eviction sink) so that a firmware writes
+//! that loop in a handful of lines and never wires the map to the link itself. It holds no pointer and
+//! nothing on the heap; [`Mapper::EMPTY`] is all zero, so a `static` of it lives in `.bss`, and
+//! [`Mapper::configure`] sets it up in place from a [`Setup`] that can itself be a `const`.
+//!
+//! Nothing on its path panics (the QEMU firmware's `panic-never` build proves it at link time) and nothing
+//! is lost silently: refused points are counted by the map ([`LocalMap::rejections`]), voxels the link
+//! cannot take yet stay in the map (back-pressure), and [`Mapper::drain`] sends every voxel before it
+//! returns.
+
+use crate::batch::Rejection;
+use crate::config::{ConfigError, MapConfig};
+use crate::frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
+use crate::key::to_map_frame;
+use crate::local_map::LocalMap;
+use crate::sink::Evicted;
+use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
+use nalgebra::Isometry3;
+
+/// Everything a [`Mapper`] is configured with; `const`-constructible, so a firmware keeps it in a `static`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Setup {
+    /// Voxel size, kernel, prior.
+    pub map: MapConfig,
+    /// Radius of the window around the robot (m): voxels farther away are evicted and streamed.
+    pub window_radius: f32,
+    /// Robot id, session id, how often the session header and link statistics repeat.
+    pub link: EncoderSettings,
+    /// How summaries are quantized on the wire.
+    pub codec: SummaryCodec,
+    /// Id of the PCA the features were compressed with ([`crate::wire::feature_space_id`]), or
+    /// [`NO_FEATURE_SPACE`].
+    pub feature_space: u32,
+}
+
+impl Setup {
+    /// A setup with the default summary codec and features that are not tied to a PCA.
+    pub const fn new(map: MapConfig, window_radius: f32, link: EncoderSettings) -> Self {
+        Self {
+            map,
+            window_radius,
+            link,
+            codec: SummaryCodec::DEFAULT,
+            feature_space: NO_FEATURE_SPACE,
+        }
+    }
+
+    /// The session configuration a `dim`-dimensional map sends in its header.
+    pub fn session(&self, dim: usize) -> SessionConfig {
+        SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
+    }
+}
+
+/// Why [`Mapper::configure`] refused a setup.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SetupError {
+    /// The map refused its part (window radius, sub-voxel kernel, …).
+    Map(ConfigError),
+    /// The encoder refused its part (codec, or buffers too small for one summary).
+    Link(WireError),
+}
+
+/// Why [`Mapper::drain`] stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DrainError<E> {
+    /// The writer failed; what was not sent stays in the map or the encoder's queue.
+    Write(E),
+    /// A queued voxel could not be sent (the frame size `N` is too small for one summary, or no session).
+    Stuck,
+}
+
+impl<E> From<TickError<E>> for DrainError<E> {
+    fn from(e: TickError<E>) -> Self {
+        match e {
+            TickError::Write(e, _) => Self::Write(e),
+        }
+    }
+}
+
+/// A local map of `CAP` voxels of dimension `D` streaming through a frame encoder with `QB` bytes of queue
+/// and frames of at most `N` bytes. `P` is [`crate::quant::packed_len`]`(D)` (checked at compile time).
+///
+/// Large (≈ `CAP` × [`LocalMap::BYTES_PER_VOXEL`] + `QB` + 2 `N` bytes): place it in a `static`.
+pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize> {
+    map: LocalMap<D, CAP, P>,
+    encoder: FrameEncoder<D, QB, N>,
+}
+
+impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
+    Mapper<D, CAP, P, QB, N>
+{
+    /// Unconfigured and all zero (a `static` of it lives in `.bss`): it takes no point and sends nothing
+    /// until [`Self::configure`].
+    #[allow(clippy::declare_interior_mutable_const)]
+    pub const EMPTY: Self = Self {
+        map: LocalMap::EMPTY,
+        encoder: FrameEncoder::EMPTY,
+    };
+
+    /// (Re)configure in place: clears the map and starts a new session on the link (the next tick begins
+    /// with its header). On error nothing is sent until a later `configure` succeeds.
+    pub fn configure(&mut self, setup: &Setup) -> Result<(), SetupError> {
+        self.encoder.close();
+        self.map
+            .configure(setup.map, setup.window_radius)
+            .map_err(SetupError::Map)?;
+        self.encoder
+            .configure(setup.session(D), setup.link)
+            .map_err(SetupError::Link)
+    }
+
+    /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
+    /// behind are queued for the link). Add the frame's points through the returned [`Frame`].
+    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> Frame<'_, D, CAP, P, QB, N> {
+        let t = pose.translation.vector;
+        self.map.move_window([t.x, t.y, t.z], &mut self.encoder);
+        Frame {
+            mapper: self,
+            pose: *pose,
+        }
+    }
+
+    /// One whole frame: [`Self::begin_frame`] and [`Frame::add_points`]. Returns the points integrated.
+    pub fn integrate(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        features: &[[f32; D]],
+    ) -> usize {
+        self.begin_frame(pose).add_points(points, features)
+    }
+
+    /// Spend up to `budget` bytes on the link: the session header when due, then the evicted voxels
+    /// (oldest first). Only whole frames are written.
+    pub fn tick<W: embedded_io::Write>(
+        &mut self,
+        w: &mut W,
+        budget: usize,
+    ) -> Result<TickReport, TickError<W::Error>> {
+        self.encoder
+            .tick(w, budget, core::iter::empty::<Evicted<'_, D>>())
+    }
+
+    /// End of the run: evict every voxel and send everything, then a link-statistics frame. Returns the
+    /// number of voxels evicted from the map.
+    pub fn drain<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<u32, DrainError<W::Error>> {
+        let mut evicted = 0u32;
+        // The queue refuses when full: alternate flushing the map and sending until both are empty.
+        loop {
+            let flushed = self.map.flush(&mut self.encoder);
+            let (Ok(n) | Err(n)) = flushed;
+            evicted = evicted.saturating_add(n as u32);
+            if flushed.is_ok() && self.encoder.queued() == 0 {
+                break;
+            }
+            if self.tick(w, usize::MAX)?.evicted_sent == 0 {
+                return Err(DrainError::Stuck);
+            }
+        }
+        self.encoder.send_stats(w).map_err(DrainError::Write)?;
+        Ok(evicted)
+    }
+
+    /// The map (voxels, posteriors, counters, rejections).
+    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+        &self.map
+    }
+    /// The encoder (queue, link statistics).
+    pub fn encoder(&self) -> &FrameEncoder<D, QB, N> {
+        &self.encoder
+    }
+}
+
+/// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose.
+pub struct Frame<'m, const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
+{
+    mapper: &'m mut Mapper<D, CAP, P, QB, N>,
+    pose: Isometry3<f32>,
+}
+
+impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
+    Frame<'_, D, CAP, P, QB, N>
+{
+    /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
+    /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in
+    /// [`LocalMap::rejections`].
+    pub fn add_points(&mut self, points: &[[f32; 3]], features: &[[f32; D]]) -> usize {
+        let m = &mut self.mapper;
+        m.map
+            .add_points(&self.pose, points, features, &mut m.encoder)
+    }
+
+    /// Add one sensor-frame point (for sensors that deliver a point at a time).
+    pub fn add_point(&mut self, point: [f32; 3], feature: &[f32; D]) -> Result<(), Rejection> {
+        let m = &mut self.mapper;
+        m.map
+            .add_point(to_map_frame(&self.pose, point), feature, &mut m.encoder)
+    }
+
+    /// The map, read-only (e.g. for a report between chunks).
+    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+        &self.mapper.map
+    }
+}
