@@ -112,6 +112,22 @@ pub fn feature_in_range<const D: usize>(feature: &[f32; D]) -> bool {
     over >> 31 == 0
 }
 
+/// Call `apply(target, k)` for every neighbour `target` of a group of points in `source`/`cell` that the
+/// kernel reaches with weight `k > 0`. The caller absorbs the group: `target.absorb_scaled(k, group)`.
+#[inline]
+pub fn spread<const CAP: usize>(
+    lut: &KernelLut<CAP>,
+    source: VoxelKey,
+    cell: u16,
+    mut apply: impl FnMut(VoxelKey, f32),
+) {
+    for (&o, &k) in lut.offsets().iter().zip(lut.weights(cell)) {
+        if k > 0.0 {
+            apply(source.offset(o), k);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,5 +196,19 @@ mod tests {
             let v = f32::from_bits(x);
             assert_eq!(ok(v), libm::fabsf(v) <= FEATURE_LIMIT, "{v:e}");
         }
+    }
+
+    #[test]
+    fn spread_reaches_the_filter_cube() {
+        let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
+        let mut seen = heapless::Vec::<(VoxelKey, f32), 27>::new();
+        spread(&lut, VoxelKey::new(5, 5, 5), 0, |t, k| {
+            seen.push((t, k)).unwrap()
+        });
+        assert_eq!(seen.len(), 27);
+        assert!(seen
+            .iter()
+            .all(|(t, _)| t.distance_squared(VoxelKey::new(5, 5, 5)) <= 3));
+        assert!(seen.contains(&(VoxelKey::new(5, 5, 5), 1.0)));
     }
 }

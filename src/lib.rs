@@ -102,6 +102,8 @@ pub use key::{to_map_frame, VoxelKey};
 pub use sink::{Evicted, EvictionSink, SinkFull};
 
 // ----- statistics and posteriors (the base station and the simulator share them with the device)
+// (`locate` and `spread` are the building blocks of host-side maps: the simulator's methods use them.)
+pub use batch::{locate, spread};
 pub use kernel::KernelLut;
 pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
 pub use stats::VoxelStats;
