@@ -1,0 +1,215 @@
+//! The messages a frame body carries — session header, voxel batch, link statistics — and the frame
+//! header in front of them: plain postcard with serde, so the format is the struct definitions (written
+//! out in `wire_spec.md`).
+
+use super::{SummaryCodec, WireError, CRC32, PROTOCOL_VERSION};
+use crate::config::{ConfigError, KernelMode, MapConfig, Prior};
+use crate::decode::Pca;
+use serde::{Deserialize, Serialize};
+
+/// [`SessionConfig::feature_space`] of features that are not tied to a PCA (e.g. a self-test's codebook).
+pub const NO_FEATURE_SPACE: u32 = 0;
+
+/// Everything two maps must agree on before their summaries can be merged. Sent in the session header;
+/// its CRC-32 ([`Self::id`]) is in every frame header.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SessionConfig {
+    /// Feature dimension D.
+    pub dim: u16,
+    /// Voxel edge length (m).
+    pub voxel_size: f32,
+    /// Kernel length ℓ (m).
+    pub kernel_length: f32,
+    /// Filter size f.
+    pub filter_size: u8,
+    /// Sub-voxel cells per axis; 0 = voxel-offset kernel.
+    pub subvoxel_cells: u8,
+    /// Prior λ₀.
+    pub prior_lambda: f32,
+    /// Prior μ₀.
+    pub prior_mean: f32,
+    /// Prior Ψ₀.
+    pub prior_psi: f32,
+    /// How summaries are quantized.
+    pub codec: SummaryCodec,
+    /// Id of the feature space (the PCA the features were compressed with): [`feature_space_id`];
+    /// [`NO_FEATURE_SPACE`] = features are not PCA-compressed.
+    pub feature_space: u32,
+}
+
+impl SessionConfig {
+    /// The session configuration of a D-dimensional map.
+    pub fn new(map: &MapConfig, dim: usize, codec: SummaryCodec, feature_space: u32) -> Self {
+        let p = map.prior();
+        Self {
+            dim: dim.min(u16::MAX as usize) as u16,
+            voxel_size: map.voxel_size(),
+            kernel_length: map.kernel_length(),
+            filter_size: map.filter_size(),
+            subvoxel_cells: match map.mode() {
+                KernelMode::VoxelOffset => 0,
+                KernelMode::SubVoxel { cells } => cells,
+            },
+            prior_lambda: p.lambda,
+            prior_mean: p.mean,
+            prior_psi: p.psi,
+            codec,
+            feature_space,
+        }
+    }
+
+    /// The map configuration it describes (validated).
+    pub fn map_config(&self) -> Result<MapConfig, ConfigError> {
+        let prior = Prior {
+            lambda: self.prior_lambda,
+            mean: self.prior_mean,
+            psi: self.prior_psi,
+        };
+        let mode = KernelMode::from_subvoxel_cells(self.subvoxel_cells);
+        MapConfig::new(
+            self.voxel_size,
+            self.kernel_length,
+            self.filter_size,
+            prior,
+            mode,
+        )
+    }
+
+    /// Check the whole configuration, for a receiver whose maps are `dim`-dimensional.
+    pub fn validate(&self, dim: usize) -> Result<(), WireError> {
+        if usize::from(self.dim) != dim {
+            return Err(WireError::BadConfig);
+        }
+        self.codec.validate(dim)?;
+        self.map_config().map_err(|_| WireError::BadConfig)?;
+        Ok(())
+    }
+
+    /// The configuration id: CRC-32 of its postcard encoding.
+    pub fn id(&self) -> u32 {
+        let mut buf = [0u8; 64];
+        match postcard::to_slice(self, &mut buf) {
+            Ok(bytes) => CRC32.checksum(bytes),
+            Err(_) => 0, // cannot happen: the encoding is at most 40 bytes
+        }
+    }
+}
+
+/// Id of a PCA feature space: CRC-32 over its mean then its components (row-major), as f32 little-endian.
+pub fn feature_space_id<const D: usize, const F: usize>(pca: &Pca<D, F>) -> u32 {
+    let mut digest = CRC32.digest();
+    for v in pca.mean.iter().chain(pca.components.iter().flatten()) {
+        digest.update(&v.to_le_bytes());
+    }
+    digest.finalize()
+}
+
+/// Header of every frame body. `version` is byte 0 in every protocol version.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameHeader {
+    /// [`PROTOCOL_VERSION`].
+    pub version: u8,
+    /// Which robot.
+    pub robot: u16,
+    /// Which session of that robot (a fresh number per boot): residency numbers and sequence numbers
+    /// restart with a session.
+    pub session: u32,
+    /// Frame sequence number within the session, from 0, +1 per frame.
+    pub seq: u32,
+    /// [`SessionConfig::id`] of the session.
+    pub config_id: u32,
+}
+
+/// Link statistics the robot reports about itself.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkStats {
+    /// Frames written before this one.
+    pub frames_sent: u32,
+    /// Final (evicted) summaries written.
+    pub evicted_sent: u32,
+    /// Live summaries written.
+    pub live_sent: u32,
+    /// Evictions refused because the queue was full (the map kept those voxels).
+    pub refused: u32,
+    /// Evicted voxels dropped because they were not finite (never sent).
+    pub invalid: u32,
+    /// Frames the writer failed to send.
+    pub write_errors: u32,
+    /// Bytes written, wrapping.
+    pub bytes_sent: u32,
+    /// Most summaries ever waiting in the queue.
+    pub queue_peak: u32,
+}
+
+impl LinkStats {
+    /// All counters zero (the same as `default()`, usable in `const` context).
+    pub const ZERO: Self = Self {
+        frames_sent: 0,
+        evicted_sent: 0,
+        live_sent: 0,
+        refused: 0,
+        invalid: 0,
+        write_errors: 0,
+        bytes_sent: 0,
+        queue_peak: 0,
+    };
+}
+
+/// Summaries packed as the format says ([`encode_summary`]); `count` of them, nothing after.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct VoxelBatch<'a> {
+    /// How many summaries.
+    pub count: u16,
+    /// The packed summaries.
+    pub summaries: &'a [u8],
+}
+
+/// A frame's message.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Message<'a> {
+    /// Session header: the configuration (sent first and periodically).
+    Session(SessionConfig),
+    /// Voxel summaries.
+    #[serde(borrow)]
+    Voxels(VoxelBatch<'a>),
+    /// Link statistics.
+    Stats(LinkStats),
+}
+
+/// Serialize header + message into `out`; returns the body length.
+pub fn encode_body(
+    header: &FrameHeader,
+    message: &Message<'_>,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
+    let h = postcard::to_slice(header, out)
+        .map_err(|_| WireError::BufferFull)?
+        .len();
+    let rest = out.get_mut(h..).ok_or(WireError::BufferFull)?;
+    let m = postcard::to_slice(message, rest)
+        .map_err(|_| WireError::BufferFull)?
+        .len();
+    Ok(h + m)
+}
+
+/// Parse a frame body (CRC already checked): version first, then header and message, nothing after.
+pub fn parse_body(body: &[u8]) -> Result<(FrameHeader, Message<'_>), WireError> {
+    match body.first() {
+        None => return Err(WireError::Truncated),
+        Some(&v) if v != PROTOCOL_VERSION => return Err(WireError::UnknownVersion(v)),
+        Some(_) => {}
+    }
+    let map = |e: postcard::Error| match e {
+        postcard::Error::DeserializeUnexpectedEnd => WireError::Truncated,
+        _ => WireError::Malformed,
+    };
+    let (header, rest) = postcard::take_from_bytes::<FrameHeader>(body).map_err(map)?;
+    let (message, rest) = postcard::take_from_bytes::<Message<'_>>(rest).map_err(map)?;
+    if !rest.is_empty() {
+        return Err(WireError::Malformed);
+    }
+    Ok((header, message))
+}
+
