@@ -42,15 +42,22 @@ fn main() {
     for frame in 0..50u16 {
         // Your odometry: here the robot drives 5 cm per frame along x.
         let x = f32::from(frame) * 0.05;
-        let pose = Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity());
+        let pose =
+            Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity());
         // Your sensor: 8 × 8 points on a wall 1 m ahead (sensor frame); your vision model: the features.
         for (i, (p, f)) in points.iter_mut().zip(&mut features).enumerate() {
-            *p = [(i % 8) as f32 * 0.04 - 0.14, (i / 8) as f32 * 0.04 - 0.14, 1.0];
+            *p = [
+                (i % 8) as f32 * 0.04 - 0.14,
+                (i / 8) as f32 * 0.04 - 0.14,
+                1.0,
+            ];
             f.fill(0.0);
             f[i % 4] = 1.0; // four kinds of surface
         }
         mapper.integrate(&pose, &points, &features);
-        let sent: TickReport = mapper.tick(&mut link, BUDGET).expect("the link never fails here");
+        let sent: TickReport = mapper
+            .tick(&mut link, BUDGET)
+            .expect("the link never fails here");
         if frame % 10 == 0 {
             println!(
                 "frame {frame:2}: {} voxels held, {} evicted voxels sent in {} B",

@@ -8,6 +8,7 @@
 //! them. Neighbours whose weight is zero in every sub-cell are left out of the table.
 
 use crate::config::{ConfigError, KernelMode, MapConfig, MAX_FILTER_SIZE};
+use crate::key::{Offset, VoxelKey};
 use core::f32::consts::PI;
 
 /// The sparse kernel k(d) for kernel length ℓ: smooth, compactly supported, k(0) = 1, k(d ≥ ℓ) = 0,
@@ -21,9 +22,6 @@ pub fn sparse_kernel(distance: f32, kernel_length: f32) -> f32 {
     let k = (2.0 + cos) / 3.0 * (1.0 - r) + sin / (2.0 * PI);
     k.clamp(0.0, 1.0)
 }
-
-/// An integer voxel offset from a point's own voxel to a neighbour.
-pub type Offset = [i8; 3];
 
 /// Most neighbours a table can hold: f³ for the largest filter size.
 pub const MAX_NEIGHBOURS: usize =
@@ -196,7 +194,7 @@ impl<const CAP: usize> KernelLut<CAP> {
 
     /// The sub-cell of a map-frame position, given the voxel it falls into.
     /// `position` must be finite (the caller validated it when computing the key).
-    pub fn cell_of(&self, position: [f32; 3], key: crate::key::VoxelKey) -> u16 {
+    pub fn cell_of(&self, position: [f32; 3], key: VoxelKey) -> u16 {
         if self.cells == 1 {
             return 0;
         }

@@ -8,6 +8,9 @@
 
 use nalgebra::{Isometry3, Point3};
 
+/// An integer voxel offset from a voxel to a neighbour (the kernel's table lists those it reaches).
+pub type Offset = [i8; 3];
+
 /// Largest |index| per axis a key may have.
 pub const KEY_LIMIT: i32 = 1 << 30;
 
@@ -71,7 +74,7 @@ impl VoxelKey {
     }
 
     /// The neighbour at an offset of at most ±3 voxels per axis.
-    pub fn offset(self, o: crate::kernel::Offset) -> Self {
+    pub fn offset(self, o: Offset) -> Self {
         // |index| < 2³⁰ and |o| ≤ 3, so these additions cannot overflow.
         Self::new(
             self.x + i32::from(o[0]),

@@ -87,7 +87,8 @@ impl<E> From<TickError<E>> for DrainError<E> {
 /// and frames of at most `N` bytes. `P` is [`crate::quant::packed_len`]`(D)` (checked at compile time).
 ///
 /// Large (≈ `CAP` × [`LocalMap::BYTES_PER_VOXEL`] + `QB` + 2 `N` bytes): place it in a `static`.
-pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize> {
+pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
+{
     map: LocalMap<D, CAP, P>,
     encoder: FrameEncoder<D, QB, N>,
 }
@@ -178,8 +179,14 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
 }
 
 /// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose.
-pub struct Frame<'m, const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-{
+pub struct Frame<
+    'm,
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const QB: usize,
+    const N: usize,
+> {
     mapper: &'m mut Mapper<D, CAP, P, QB, N>,
     pose: Isometry3<f32>,
 }

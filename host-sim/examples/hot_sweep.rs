@@ -7,8 +7,8 @@
 //! tier's size. Deterministic: counts, not timings.
 //! Run: `cargo run --release -p host-sim --example hot_sweep`.
 
-use latentbki_selftest::SELF_TEST;
 use latentbki::{packed_len, to_map_frame, Evicted, LocalMap, ObsStats, SinkFull};
+use latentbki_selftest::SELF_TEST;
 
 const D: usize = 64;
 const P: usize = packed_len(D);

@@ -10,11 +10,11 @@
 //! Only the voxel-offset kernel can be gathered from per-voxel statistics; a sub-voxel configuration is
 //! refused at construction ([`ObsMapError::SubVoxelKernel`]) — [`crate::ReferenceMap`] keeps that mode.
 
-use latentbki::nalgebra::Isometry3;
 use latentbki::batch::locate;
+use latentbki::nalgebra::Isometry3;
 use latentbki::{
-    to_map_frame, ConfigError, GatherError, KernelLut, MapConfig, ObsLookup, ObsStats,
-    Prior, RejectionCounts, VoxelKey, VoxelStats,
+    to_map_frame, ConfigError, GatherError, KernelLut, MapConfig, ObsLookup, ObsStats, Prior,
+    RejectionCounts, VoxelKey, VoxelStats,
 };
 use rustc_hash::FxHashMap;
 

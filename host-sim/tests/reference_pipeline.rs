@@ -3,8 +3,8 @@
 //! in f64. Random poses, points near and far from the origin, several batches, f = 1, 3, 5.
 
 use host_sim::ReferenceMap;
-use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use latentbki::kernel::sparse_kernel;
+use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use latentbki::{to_map_frame, KernelMode, MapConfig, Prior, VoxelKey};
 use proptest::prelude::*;
 use std::collections::BTreeMap;

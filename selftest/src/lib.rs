@@ -565,7 +565,13 @@ impl Scenario {
     }
 
     /// Clear `mapper` and configure it for this scenario (in place).
-    pub fn configure<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>(
+    pub fn configure<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+    >(
         &self,
         mapper: &mut Mapper<D, CAP, P, QB, N>,
     ) -> Result<(), SetupError> {

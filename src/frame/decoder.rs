@@ -149,4 +149,3 @@ impl<const N: usize> FrameDecoder<N> {
         Feed::NeedMore
     }
 }
-

@@ -412,7 +412,14 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                 };
                 let (key, residency, points) = parse_entry_head(head);
                 let summary = (key, residency, points, Codes::<D>::Queued(codes));
-                if !append(&mut self.scratch, &mut used, &mut base, limit, codec, summary) {
+                if !append(
+                    &mut self.scratch,
+                    &mut used,
+                    &mut base,
+                    limit,
+                    codec,
+                    summary,
+                ) {
                     break;
                 }
                 count += 1;
@@ -426,7 +433,14 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                     // Consumed either way: sent, or skipped because the decoder would refuse it.
                     if let Some(n) = sendable(v.obs) {
                         let summary = (v.key, v.residency, n, Codes::Live(v.obs));
-                        if !append(&mut self.scratch, &mut used, &mut base, limit, codec, summary) {
+                        if !append(
+                            &mut self.scratch,
+                            &mut used,
+                            &mut base,
+                            limit,
+                            codec,
+                            summary,
+                        ) {
                             break;
                         }
                         count += 1;
@@ -559,4 +573,3 @@ pub fn live<const D: usize>(key: VoxelKey, obs: &ObsStats<D>, residency: u32) ->
         residency,
     }
 }
-

@@ -78,4 +78,3 @@ impl SeqTracker {
         self.started.then_some(self.highest)
     }
 }
-

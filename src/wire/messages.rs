@@ -212,4 +212,3 @@ pub fn parse_body(body: &[u8]) -> Result<(FrameHeader, Message<'_>), WireError> 
     }
     Ok((header, message))
 }
-

@@ -21,12 +21,13 @@ pub mod messages;
 pub mod summary;
 
 pub use messages::{
-    encode_body, feature_space_id, parse_body, FrameHeader, LinkStats, Message, SessionConfig, VoxelBatch,
-    NO_FEATURE_SPACE,
+    encode_body, feature_space_id, parse_body, FrameHeader, LinkStats, Message, SessionConfig,
+    VoxelBatch, NO_FEATURE_SPACE,
 };
 pub use summary::{
-    decode_codes, decode_summary, encode_codes, encode_summary, encode_summary_head, mean_error_bound,
-    wire_count, Ceiling, DeltaBase, Summary, SummaryCodec, SummaryIter, MAX_COUNT,
+    decode_codes, decode_summary, encode_codes, encode_summary, encode_summary_head,
+    mean_error_bound, wire_count, Ceiling, DeltaBase, Summary, SummaryCodec, SummaryIter,
+    MAX_COUNT,
 };
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.

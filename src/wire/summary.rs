@@ -508,4 +508,3 @@ impl<const D: usize> Iterator for SummaryIter<'_, D> {
         Some(r)
     }
 }
-

@@ -1,9 +1,9 @@
 use super::summary::{block_range, hadamard, put_varint, unzigzag, zigzag};
+use super::*;
 use crate::config::{KernelMode, MapConfig, Prior};
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use core::num::NonZeroUsize;
-use super::*;
 
 fn sample<const D: usize>(seed: u32) -> ObsStats<D> {
     // A small deterministic generator (xorshift) so the test needs no RNG crate.
@@ -17,9 +17,7 @@ fn sample<const D: usize>(seed: u32) -> ObsStats<D> {
     ObsStats {
         count: (3.0 + 10.0 * libm::fabsf(next())) as u32 as f32,
         mean: core::array::from_fn(|i| next() / (1.0 + i as f32 * 0.1)),
-        scatter: core::array::from_fn(|i| {
-            1.0 + 5.0 * libm::fabsf(next()) / (1.0 + i as f32 * 0.2)
-        }),
+        scatter: core::array::from_fn(|i| 1.0 + 5.0 * libm::fabsf(next()) / (1.0 + i as f32 * 0.2)),
     }
 }
 
@@ -122,8 +120,7 @@ fn summary_round_trip_within_bounds() {
         count: 3,
         summaries: &buf[..at],
     };
-    let got: heapless::Vec<Summary<64>, 3> =
-        batch.iter::<64>(codec).map(|r| r.unwrap()).collect();
+    let got: heapless::Vec<Summary<64>, 3> = batch.iter::<64>(codec).map(|r| r.unwrap()).collect();
     for (i, s) in got.iter().enumerate() {
         assert_eq!(s.key, keys[i]);
         assert_eq!(s.residency, u32::MAX - i as u32);

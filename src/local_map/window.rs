@@ -1,0 +1,61 @@
+//! The window that follows the robot: keys are stored as 3 × i16 wrapped around its centre (the window is
+//! far smaller than 2¹⁶ voxels, so the full key is recovered exactly), and a move evicts the voxels left
+//! outside in place — it reads every key but writes only the evicted slots.
+
+use super::{LocalMap, OCCUPIED};
+use crate::key::VoxelKey;
+use crate::sink::EvictionSink;
+
+pub(super) fn wrap(k: VoxelKey) -> [i16; 3] {
+    [k.x as i16, k.y as i16, k.z as i16]
+}
+
+pub(super) fn unwrap(w: [i16; 3], centre: VoxelKey) -> VoxelKey {
+    let d = |w: i16, c: i32| c + i32::from(w.wrapping_sub(c as i16));
+    VoxelKey::new(d(w[0], centre.x), d(w[1], centre.y), d(w[2], centre.z))
+}
+
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+    /// Whether a key is close enough to a centre to be stored wrapped (every axis within ±2¹⁵).
+    pub(super) fn wrap_safe(k: VoxelKey, centre: VoxelKey) -> bool {
+        let ok = |a: i32, c: i32| (i64::from(a) - i64::from(c)).abs() < 1 << 15;
+        ok(k.x, centre.x) && ok(k.y, centre.y) && ok(k.z, centre.z)
+    }
+
+    pub(super) fn in_window(&self, k: VoxelKey) -> bool {
+        let r = i64::from(self.radius);
+        k.distance_squared(self.centre) <= r * r
+    }
+
+    /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number
+    /// evicted. Refused evictions stay (counted); if one of them would fall out of the key wrap range the
+    /// centre does not move this time.
+    pub fn move_window<S: EvictionSink<D>>(&mut self, position: [f32; 3], sink: &mut S) -> usize {
+        let Ok(new_centre) = VoxelKey::from_position(position, self.lut.inv_voxel_size()) else {
+            return 0;
+        };
+        let old_centre = self.centre;
+        let r = i64::from(self.radius);
+        let mut evicted = 0;
+        let mut keep_centre = false;
+        for s in 0..CAP {
+            if self.slots[s].flags & OCCUPIED == 0 {
+                continue;
+            }
+            let key = unwrap(self.slots[s].key, old_centre);
+            if key.distance_squared(new_centre) > r * r {
+                if self.evict_slot(s, sink) {
+                    evicted += 1;
+                } else if !Self::wrap_safe(key, new_centre) {
+                    keep_centre = true;
+                }
+            }
+        }
+        // Keys are stored wrapped: any centre within the wrap range unwraps them to the same full keys, so
+        // moving the centre rewrites nothing.
+        if !keep_centre {
+            self.centre = new_centre;
+        }
+        evicted
+    }
+}
