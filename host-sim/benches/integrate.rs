@@ -46,7 +46,6 @@ fn bench(c: &mut Criterion) {
                     for (p, y) in pts.iter().zip(&feats) {
                         let _ = m.add_point(*p, y, &mut discard);
                     }
-                    m.end_batch(&mut discard);
                 },
                 BatchSize::PerIteration,
             )
@@ -60,7 +59,6 @@ fn bench(c: &mut Criterion) {
                         let i = i as usize;
                         let _ = m.add_point(pts[i], &feats[i], &mut discard);
                     }
-                    m.end_batch(&mut discard);
                 },
                 BatchSize::PerIteration,
             )

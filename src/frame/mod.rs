@@ -5,7 +5,7 @@
 //! so a receiver re-synchronises at the next 0x00 after any damage; a CRC-32 refuses damaged frames
 //! whole; a per-session sequence number lets the receiver count every frame it never got.
 //!
-//! The sending side is [`FrameEncoder`]: it is the local map's [`EvictionSink`] (evicted voxels are
+//! The sending side is [`FrameEncoder`]: it is the local map's [`EvictionSink`](crate::sink::EvictionSink) (evicted voxels are
 //! quantized at once into a fixed byte queue; a full queue refuses, and the map keeps the voxel), and each
 //! [`FrameEncoder::tick`] spends a byte budget — session header when due, then evicted voxels, then the
 //! live voxels the caller ranks most changed — so a slow link degrades by sending fewer live updates, never

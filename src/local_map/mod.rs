@@ -111,7 +111,7 @@ pub struct LiveVoxel<const D: usize> {
     pub key: VoxelKey,
     /// Its observation statistics (quantized part decoded, hot part merged).
     pub obs: ObsStats<D>,
-    /// Its residency number (see [`Evicted::residency`]).
+    /// Its residency number (see [`crate::sink::Evicted::residency`]).
     pub residency: u32,
 }
 

@@ -157,7 +157,7 @@ impl LinkStats {
     };
 }
 
-/// Summaries packed as the format says ([`encode_summary`]); `count` of them, nothing after.
+/// Summaries packed as the format says ([`super::encode_summary`]); `count` of them, nothing after.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct VoxelBatch<'a> {
     /// How many summaries.
