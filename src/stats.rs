@@ -50,51 +50,22 @@ impl<const D: usize> VoxelStats<D> {
     /// (the batch seen through one kernel weight). `k · batch.lambda ≤ 0` leaves `self` unchanged.
     #[inline]
     pub fn absorb_scaled(&mut self, k: f32, batch: &Self) {
-        let k_bar = k * batch.lambda;
-        if !(k_bar > 0.0) {
-            return;
-        }
-        let (gain, cross) = self.gains(k_bar);
-        for i in 0..D {
-            update_dim(
-                &mut self.mean[i],
-                &mut self.psi[i],
-                gain,
-                cross,
-                batch.mean[i],
-                k * batch.psi[i],
-            );
-        }
-        self.lambda += k_bar;
-    }
-
-    /// The update's two coefficients for a batch of weight k̄: (k̄ / λᵗ, λᵗ⁻¹ k̄ / λᵗ).
-    #[inline]
-    fn gains(&self, k_bar: f32) -> (f32, f32) {
-        let gain = k_bar / (self.lambda + k_bar);
-        (gain, self.lambda * gain)
+        combine(
+            (&mut self.lambda, &mut self.mean, &mut self.psi),
+            k,
+            (batch.lambda, &batch.mean, &batch.psi),
+        );
     }
 
     /// Combine with observation statistics seen through kernel weight `k` (the paper's update with
     /// k̄ = k·n, ȳ = m, S̄ = k·S). `k · obs.count ≤ 0` leaves `self` unchanged.
     #[inline]
     pub fn absorb_observations(&mut self, k: f32, obs: &crate::obs::ObsStats<D>) {
-        let k_bar = k * obs.count;
-        if !(k_bar > 0.0) {
-            return;
-        }
-        let (gain, cross) = self.gains(k_bar);
-        for i in 0..D {
-            update_dim(
-                &mut self.mean[i],
-                &mut self.psi[i],
-                gain,
-                cross,
-                obs.mean[i],
-                k * obs.scatter[i],
-            );
-        }
-        self.lambda += k_bar;
+        combine(
+            (&mut self.lambda, &mut self.mean, &mut self.psi),
+            k,
+            (obs.count, &obs.mean, &obs.scatter),
+        );
     }
 
     /// Combine with a batch's moments (the paper's update).
@@ -109,9 +80,10 @@ impl<const D: usize> VoxelStats<D> {
         if !(k > 0.0) {
             return;
         }
-        let (gain, cross) = self.gains(k);
+        let gain = k / (self.lambda + k);
+        let cross = self.lambda * gain;
         for i in 0..D {
-            update_dim(&mut self.mean[i], &mut self.psi[i], gain, cross, y[i], 0.0);
+            update_dim_point(&mut self.mean[i], &mut self.psi[i], gain, cross, y[i]);
         }
         self.lambda += k;
     }
@@ -151,6 +123,36 @@ impl<const D: usize> VoxelStats<D> {
             && self.mean.iter().all(|v| v.is_finite())
             && self.psi.iter().all(|v| v.is_finite())
     }
+}
+
+/// The update (§III-B) of weighted moments (weight, mean, scatter) — a posterior (λ, μ, Ψ) or observation
+/// statistics (n, m, S) — with another set seen through kernel weight `k`: k̄ = k·w, then [`update_dim`] per
+/// dimension with S̄ = k·s. `k·w ≤ 0` (or NaN) changes nothing. The single place the update is assembled.
+#[inline(always)]
+pub(crate) fn combine<const D: usize>(
+    into: (&mut f32, &mut [f32; D], &mut [f32; D]),
+    k: f32,
+    other: (f32, &[f32; D], &[f32; D]),
+) {
+    let (weight, mean, spread) = into;
+    let k_bar = k * other.0;
+    if !(k_bar > 0.0) {
+        return;
+    }
+    let total = *weight + k_bar;
+    let gain = k_bar / total; // k̄ / λᵗ
+    let cross = *weight * gain; // λᵗ⁻¹ k̄ / λᵗ
+    for i in 0..D {
+        update_dim(
+            &mut mean[i],
+            &mut spread[i],
+            gain,
+            cross,
+            other.1[i],
+            k * other.2[i],
+        );
+    }
+    *weight = total;
 }
 
 /// One dimension of the update (§III-B), the single place it is written:
