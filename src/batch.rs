@@ -6,8 +6,8 @@
 //!    kernel weights to every neighbour, so they are grouped.
 //! 2. Spread each group to the neighbours in the kernel table: target voxel t receives the group scaled by
 //!    k(s → t). The f32 reference map groups into Welford moments ([`crate::VoxelStats::absorb_point`]) and uses
-//!    [`spread`]; the on-device map groups raw sums ([`crate::BatchSums`], no division per point) and asks
-//!    [`KernelLut::weight_at`] per target. Both are exactly the paper's per-point batch sums (Chan's
+//!    [`spread`]; the on-device map groups the same moments ([`crate::VoxelStats::add_unit_point`], one
+//!    division per point) and asks [`KernelLut::weight_at`] per target. Both are exactly the paper's per-point batch sums (Chan's
 //!    combination; the equivalence tests check it).
 //!
 //! Grouping turns "points × f³" into "occupied voxels × f³", the main saving on dense scans.

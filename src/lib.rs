@@ -44,7 +44,7 @@ pub use key::{to_map_frame, VoxelKey};
 pub use local_map::LocalMap;
 pub use quant::packed_len;
 pub use sink::{Evicted, EvictionSink, SinkFull};
-pub use stats::{BatchSums, VoxelStats};
+pub use stats::VoxelStats;
 pub use wire::{SessionConfig, SummaryCodec};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.

@@ -16,7 +16,8 @@
 //! - **Batches** are grouped by source voxel in a small f32 scratch (`G` groups, [`GROUPS`] by default:
 //!   ~17 KiB at D = 64 on a device; a host can afford hundreds, and each flush re-encodes its targets, so a
 //!   bigger scratch re-encodes shared neighbours less often); when it fills, the
-//!   groups are applied target by target: the raw sums ([`BatchSums`]) of every group in reach, through
+//!   groups are applied target by target: the moments (count, mean, scatter about the mean — never raw
+//!   sums, which cancel for offset features; see [`crate::stats`]) of every group in reach, merged through
 //!   its kernel weight, form the target's batch (k̄, ȳ, S̄); the voxel is decoded once, takes the paper's
 //!   batch update once, and is re-encoded once.
 
@@ -26,7 +27,7 @@ use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
 use crate::quant::{Dither, QuantVoxel};
 use crate::sink::{Evicted, EvictionSink};
-use crate::stats::{BatchSums, VoxelStats};
+use crate::stats::VoxelStats;
 use half::f16;
 use nalgebra::Isometry3;
 
@@ -78,7 +79,8 @@ enum NoSlot {
 struct Group<const D: usize> {
     key: VoxelKey,
     cell: u16,
-    sums: BatchSums<D>,
+    /// Moments of the group's points (λ = n, μ, Ψ = scatter), Welford-updated.
+    moments: VoxelStats<D>,
 }
 
 /// What one call changed, for logs and tests.
@@ -126,8 +128,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const G: u
     /// The group the previous point joined.
     last_group: usize,
     scratch: VoxelStats<D>,
-    /// The raw sums of the batch a target is absorbing.
-    batch: BatchSums<D>,
+    /// The moments of the batch a target is absorbing.
+    batch: VoxelStats<D>,
     centre: VoxelKey,
     radius: i32,
     epoch: u8,
@@ -184,7 +186,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         groups: heapless::Vec::new(),
         last_group: 0,
         scratch: VoxelStats::EMPTY,
-        batch: BatchSums::EMPTY,
+        batch: VoxelStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
         radius: 0,
         epoch: 0,
@@ -610,7 +612,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                 let group = Group {
                     key,
                     cell,
-                    sums: BatchSums::EMPTY,
+                    moments: VoxelStats::EMPTY,
                 };
                 // Cannot fail: the scratch was just emptied if it was full. Should it, the point is
                 // refused and counted, never added to another group.
@@ -623,7 +625,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
         };
         self.last_group = g;
         match self.groups.get_mut(g) {
-            Some(group) => group.sums.add_point(feature),
+            Some(group) => group.moments.add_unit_point(feature),
             None => {
                 // Unreachable: `g` was just found or pushed.
                 self.rejections.count(Rejection::NoRoom);
@@ -690,7 +692,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                     // group on the stack as `Vec::remove` would return).
                     let len = self.groups.len();
                     if placed < len {
-                        let n = self.groups[placed].sums.weight as u32;
+                        let n = self.groups[placed].moments.lambda as u32;
                         self.rejections.no_room = self.rejections.no_room.saturating_add(n);
                         self.counters.points = self.counters.points.wrapping_sub(n);
                         self.groups.copy_within(placed + 1.., placed);
@@ -732,22 +734,22 @@ impl<const D: usize, const CAP: usize, const P: usize, const G: usize> LocalMap<
                     );
                     if w > 0.0 {
                         if first {
-                            self.batch.set_scaled(w, &grp.sums);
+                            self.batch.set_scaled(w, &grp.moments);
                             first = false;
                         } else {
-                            self.batch.add_scaled(w, &grp.sums);
+                            self.batch.absorb_scaled(w, &grp.moments);
                         }
                     }
                 }
                 if first {
                     continue; // unreachable: group g reaches t
                 }
-                let mass = self.batch.weight;
+                let mass = self.batch.lambda;
                 let Some(slot) = self.slots.get_mut(s) else {
                     continue; // unreachable: `find` returned it
                 };
                 slot.voxel.decode_into(&mut self.scratch);
-                self.scratch.absorb_sums(&self.batch);
+                self.scratch.absorb(&self.batch);
                 slot.voxel = slot.voxel.reencode(&self.scratch, &mut self.dither);
                 slot.unsent = f16::from_f32(slot.unsent.to_f32() + mass);
                 slot.flags |= REFERENCED;
