@@ -30,6 +30,7 @@ pub mod kernel;
 pub mod key;
 pub mod local_map;
 pub mod quant;
+pub mod sampling;
 pub mod sink;
 pub mod stats;
 pub mod synth;
@@ -38,6 +39,8 @@ pub mod wire;
 pub use batch::{locate, spread, Rejection, RejectionCounts};
 pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
 pub use decode::{Codebook, CodebookError, Pca};
+pub use inference::{Optimality, Spread};
+pub use sampling::{Sampler, SamplingMode};
 pub use frame::{FrameDecoder, FrameEncoder, SeqTracker};
 pub use kernel::{sparse_kernel, KernelLut};
 pub use key::{to_map_frame, VoxelKey};
@@ -49,5 +52,5 @@ pub use wire::{SessionConfig, SummaryCodec};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;
-/// Re-exported so users seed the same PRNG the library's sampling was tested with.
+/// Re-exported: the PRNG the library's tests and the host's simulations use.
 pub use rand_xoshiro;
