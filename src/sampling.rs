@@ -83,6 +83,39 @@ pub fn authors_score_variance<const D: usize, const K: usize>(
     Some(variance(&scores[..t.len()]))
 }
 
+/// The authors' sampling variance computed from the χ² parts of their draws: torch draws each
+/// dimension's t as Z_kd·√(λ/G_kd) (Z normal, G χ²_λ), and the score is linear in the draw, so given the
+/// G's the score's random part Σ_d a_d Z_kd √(λ/G_kd) is normal with variance λ·Σ_d a_d²/G_kd: one normal
+/// `zeta[k]` per draw replaces D of them — the same distribution as [`authors_score_variance`] (a test
+/// checks it), for the χ² draws `chi2[k][d]`. `None` as for [`authors_score_variance`].
+pub fn authors_score_variance_from_chi2<const D: usize, const K: usize>(
+    v: &VoxelStats<D>,
+    codebook: &Codebook<D, K>,
+    category: usize,
+    chi2: &[[f32; D]],
+    zeta: &[f32],
+) -> Option<f32> {
+    let f = Spread::AuthorsTVar.factor(v.lambda)?;
+    let c = codebook.categories().get(category)?;
+    if chi2.len() < 2 || chi2.len() != zeta.len() || chi2.len() > MAX_DRAWS {
+        return None;
+    }
+    let inv = 1.0 / c.norm;
+    let a2: [f32; D] = core::array::from_fn(|d| {
+        let a = f * v.psi[d] * c.direction[d] * inv;
+        v.lambda * a * a
+    });
+    let mut scores = [0.0f32; MAX_DRAWS];
+    for ((s, g), z) in scores.iter_mut().zip(chi2).zip(zeta) {
+        let mut acc = [0.0f32; D];
+        for d in 0..D {
+            acc[d] = a2[d] / g[d];
+        }
+        *s = z * libm::sqrtf(acc.iter().sum::<f32>());
+    }
+    Some(variance(&scores[..chi2.len()]))
+}
+
 /// The sound sampling variance of category `category`'s cosine score given standard normal draws
 /// `z[k][d]` and one χ²_λ draw `chi2[k]` per draw: x_k = μ + √scale ⊙ z_k · √(λ/χ²_k).
 /// `None` for λ ≤ 2, fewer than 2 draws, mismatched lengths or an unknown category.
@@ -130,7 +163,7 @@ fn dot<const D: usize>(a: &[f32; D], b: &[f32; D]) -> f32 {
 
 const LANES: usize = 8;
 
-/// Eight xoshiro128++ generators side by side (struct of arrays, so a step is a few vector instructions).
+/// Eight xorshift128 generators side by side (struct of arrays, so a step is a few vector instructions).
 #[derive(Clone, Debug)]
 struct LaneRng {
     s: [[u32; LANES]; 4],
@@ -160,18 +193,20 @@ impl LaneRng {
 
     #[inline(always)]
     fn next(&mut self) -> [u32; LANES] {
-        let [s0, s1, s2, s3] = &mut self.s;
+        // xorshift128 (Marsaglia 2003) per lane: shifts and xors only, so the step vectorises with SSE2
+        // (xoshiro128++'s rotations kept the lanes scalar). The variates use the top 23 bits, where its
+        // linear artefacts are weakest; the tests check the distributions.
+        let [mut x, mut y, mut z, mut w] = self.s;
         let mut out = [0u32; LANES];
         for l in 0..LANES {
-            out[l] = s0[l].wrapping_add(s3[l]).rotate_left(7).wrapping_add(s0[l]);
-            let t = s1[l] << 9;
-            s2[l] ^= s0[l];
-            s3[l] ^= s1[l];
-            s1[l] ^= s2[l];
-            s0[l] ^= s3[l];
-            s2[l] ^= t;
-            s3[l] = s3[l].rotate_left(11);
+            let t = x[l] ^ (x[l] << 11);
+            x[l] = y[l];
+            y[l] = z[l];
+            z[l] = w[l];
+            w[l] = w[l] ^ (w[l] >> 19) ^ (t ^ (t >> 8));
+            out[l] = w[l];
         }
+        self.s = [x, y, z, w];
         out
     }
 }
@@ -188,7 +223,8 @@ fn open_unit(u: u32) -> f32 {
     ((u >> 9) as f32 + 0.5) * (1.0 / 8_388_608.0)
 }
 
-/// log₂ x for positive normal x, branch-free (vectorises): error below 3e-7 absolute.
+/// log₂ x for positive normal x, branch-free (vectorises): error below 3e-7 absolute plus the f32
+/// rounding of the result.
 #[inline(always)]
 fn log2_fast(x: f32) -> f32 {
     let bits = x.to_bits();
@@ -203,17 +239,51 @@ fn log2_fast(x: f32) -> f32 {
     e + 2.0 * core::f32::consts::LOG2_E * t * series
 }
 
-/// 2^y for 0 ≤ y < 127, branch-free: relative error below 3e-7.
+/// 2^y for −126 < y < 127, branch-free (vectorises): relative error below 3e-7.
 #[inline(always)]
 fn exp2_fast(y: f32) -> f32 {
-    let i = y as i32; // y ≥ 0: truncation is the floor
-    let f = y - i as f32 - 0.5; // [−½, ½)
-    let x = f * core::f32::consts::LN_2;
+    // Round to the nearest integer by adding 1.5·2²³ (no float → int conversion, which would not
+    // vectorise with Rust's saturating semantics): the integer sits in the low mantissa bits.
+    const MAGIC: f32 = 12_582_912.0;
+    let r = y + MAGIC;
+    let i = r.to_bits().wrapping_sub(MAGIC.to_bits()) as i32;
+    let x = (y - (r - MAGIC)) * core::f32::consts::LN_2; // |x| ≤ ½ ln 2
     // e^x, |x| ≤ 0.347: Taylor to x⁶ leaves < 2e-8.
     let p = 1.0
         + x * (1.0
             + x * (0.5 + x * (1.0 / 6.0 + x * (1.0 / 24.0 + x * (1.0 / 120.0 + x * (1.0 / 720.0))))));
-    p * core::f32::consts::SQRT_2 * f32::from_bits(((i + 127) as u32) << 23)
+    p * f32::from_bits((i.wrapping_add(127) as u32) << 23)
+}
+
+/// √x for finite x ≥ 0, branch-free (vectorises, unlike `libm::sqrtf`'s scalar instruction): the
+/// bit-trick reciprocal square root and three Newton steps (relative error < 2e-7), times x.
+#[inline(always)]
+fn sqrt_fast(x: f32) -> f32 {
+    let mut y = f32::from_bits(0x5F37_59DF_u32.wrapping_sub(x.to_bits() >> 1));
+    let h = 0.5 * x;
+    y *= 1.5 - h * y * y;
+    y *= 1.5 - h * y * y;
+    y *= 1.5 - h * y * y;
+    x * y
+}
+
+/// Append the first `m` of `kept` to `out` at `n` (as many as fit); returns how many were written. A
+/// whole fixed-size block is copied when it fits (no `memmove` call for a few floats).
+#[inline(always)]
+fn put<const N: usize>(out: &mut [f32], n: usize, kept: &[f32; N], m: usize) -> usize {
+    match out.get_mut(n..n + N) {
+        Some(block) => {
+            block.copy_from_slice(kept);
+            m
+        }
+        None => {
+            let take = m.min(out.len().saturating_sub(n));
+            for (o, k) in out.iter_mut().skip(n).zip(&kept[..take]) {
+                *o = *k;
+            }
+            take
+        }
+    }
 }
 
 /// The variate generators: the lane RNG and a few cached normals.
@@ -229,6 +299,7 @@ struct Variates {
 pub struct Sampler<const D: usize> {
     gen: Variates,
     draws: [[f32; D]; MAX_DRAWS],
+    /// χ² per draw (sound mode) or the per-draw normal (authors' mode).
     chi2: [f32; MAX_DRAWS],
 }
 
@@ -260,6 +331,11 @@ impl<const D: usize> Sampler<D> {
     pub fn chi_squared(&mut self, nu: f32) -> f32 {
         self.gen.chi_squared(nu)
     }
+
+    /// Fill `out` with χ² variates of `nu` > 2 degrees of freedom.
+    pub fn fill_chi_squared(&mut self, nu: f32, out: &mut [f32]) {
+        self.gen.fill_chi_squared(nu, out);
+    }
     /// Sampling uncertainty of one voxel: the variance over `draws` draws (≤ [`MAX_DRAWS`]) of the score
     /// of `category` in `codebook`, by `mode`. `None` for λ ≤ 2, fewer than 2 draws or an unknown
     /// category (checked before anything is drawn).
@@ -276,9 +352,11 @@ impl<const D: usize> Sampler<D> {
         }
         match mode {
             SamplingMode::Authors => {
-                let t = &mut self.draws[..draws];
-                self.gen.fill_student_t(v.lambda, t.as_flattened_mut());
-                authors_score_variance(v, codebook, category, t)
+                let g = &mut self.draws[..draws];
+                self.gen.fill_chi_squared(v.lambda, g.as_flattened_mut());
+                let zeta = &mut self.chi2[..draws];
+                self.gen.fill_normal(zeta);
+                authors_score_variance_from_chi2(v, codebook, category, g, zeta)
             }
             SamplingMode::Sound => {
                 let z = &mut self.draws[..draws];
@@ -334,16 +412,16 @@ impl Variates {
                 ok[l] = w < 1.0;
                 let w = if ok[l] { w } else { 0.5 };
                 let p = exp2_fast(k * log2_fast(w));
-                t[l] = a * libm::sqrtf(nu * (p - 1.0) / w);
+                t[l] = a * sqrt_fast(nu * (p - 1.0) / w);
             }
+            // Branch-free compaction of the accepted lanes (a branch per lane mispredicts ~1 in 5).
+            let mut kept = [0.0f32; LANES];
+            let mut m = 0;
             for l in 0..LANES {
-                if ok[l] {
-                    if let Some(o) = out.get_mut(n) {
-                        *o = t[l];
-                        n += 1;
-                    }
-                }
+                kept[m] = t[l];
+                m += usize::from(ok[l]);
             }
+            n += put(out, n, &kept, m);
         }
     }
 
@@ -360,19 +438,17 @@ impl Variates {
                 let w = a * a + b * b;
                 ok[l] = w < 1.0;
                 let w = if ok[l] { w } else { 0.5 };
-                let f = libm::sqrtf(-2.0 * core::f32::consts::LN_2 * log2_fast(w) / w);
+                let f = sqrt_fast(-2.0 * core::f32::consts::LN_2 * log2_fast(w) / w);
                 z[l] = [a * f, b * f];
             }
+            let mut kept = [0.0f32; 2 * LANES];
+            let mut m = 0;
             for l in 0..LANES {
-                if ok[l] {
-                    for v in z[l] {
-                        if let Some(o) = out.get_mut(n) {
-                            *o = v;
-                            n += 1;
-                        }
-                    }
-                }
+                kept[m] = z[l][0];
+                kept[m + 1] = z[l][1];
+                m += 2 * usize::from(ok[l]);
             }
+            n += put(out, n, &kept, m);
         }
     }
 
@@ -404,6 +480,56 @@ impl Variates {
                 || core::f32::consts::LN_2 * log2_fast(u) < 0.5 * x2 + d * (1.0 - v + libm::logf(v))
             {
                 return 2.0 * d * v;
+            }
+        }
+    }
+
+    /// Fill `out` with χ² variates of `nu` > 2 degrees of freedom: 2·Gamma(ν/2) by Marsaglia–Tsang,
+    /// eight lanes at a time (the squeeze accepts ~98 %; the logarithmic test runs only for a round where
+    /// some lane needs it).
+    fn fill_chi_squared(&mut self, nu: f32, out: &mut [f32]) {
+        let d = 0.5 * nu - 1.0 / 3.0;
+        let c = 1.0 / sqrt_fast(9.0 * d);
+        let mut normals = [0.0f32; 8 * LANES];
+        let mut n = 0;
+        while n < out.len() {
+            self.fill_normal(&mut normals);
+            for x in normals.chunks_exact(LANES) {
+                let u = self.rng.next();
+                let mut g = [0.0f32; LANES];
+                let mut ok = [false; LANES];
+                let mut doubt = [false; LANES];
+                for l in 0..LANES {
+                    let v = 1.0 + c * x[l];
+                    let v3 = v * v * v;
+                    let x2 = x[l] * x[l];
+                    let u = open_unit(u[l]);
+                    ok[l] = v > 0.0 && u < 1.0 - 0.0331 * x2 * x2;
+                    doubt[l] = v > 0.0 && !ok[l];
+                    g[l] = 2.0 * d * v3;
+                }
+                if doubt.iter().any(|&b| b) {
+                    for l in 0..LANES {
+                        if doubt[l] {
+                            let v = 1.0 + c * x[l];
+                            let v3 = v * v * v;
+                            let un = open_unit(u[l]);
+                            ok[l] = core::f32::consts::LN_2 * log2_fast(un)
+                                < 0.5 * x[l] * x[l]
+                                    + d * (1.0 - v3 + 3.0 * core::f32::consts::LN_2 * log2_fast(v));
+                        }
+                    }
+                }
+                let mut kept = [0.0f32; LANES];
+                let mut m = 0;
+                for l in 0..LANES {
+                    kept[m] = g[l];
+                    m += usize::from(ok[l]);
+                }
+                n += put(out, n, &kept, m);
+                if n == out.len() {
+                    return;
+                }
             }
         }
     }
@@ -556,6 +682,25 @@ mod tests {
         let g: [f32; 20_000] = core::array::from_fn(|_| s.chi_squared(6.0));
         let (m, v) = moments(&g);
         assert!((m - 6.0).abs() < 0.1 && (v / 12.0 - 1.0).abs() < 0.05, "χ²₆: {m} {v}");
+    }
+
+    #[test]
+    fn fast_elementary_functions_are_accurate() {
+        let mut worst = [0.0f64; 3];
+        for i in 1..200_000 {
+            let x = i as f32 / 200_000.0; // (0, 1): the polar methods' W
+            let l = log2_fast(x) as f64;
+            // Absolute error plus the f32 rounding of the result.
+            worst[0] = worst[0].max((l - (x as f64).log2()).abs() / (1.0 + l.abs()));
+            let y = i as f32 * (46.0 / 200_000.0);
+            let e = exp2_fast(y) as f64;
+            worst[1] = worst[1].max((e / 2f64.powf(y as f64) - 1.0).abs());
+            let z = x * 1e4 * (i as f32);
+            let r = sqrt_fast(z) as f64;
+            worst[2] = worst[2].max((r / (z as f64).sqrt() - 1.0).abs());
+        }
+        assert!(worst[0] < 5e-7 && worst[1] < 5e-7 && worst[2] < 5e-7, "{worst:?}");
+        assert_eq!(sqrt_fast(0.0), 0.0);
     }
 
     #[test]
