@@ -51,7 +51,10 @@ fn pt(truth: u16, predicted: u16, u: f32) -> Scored {
         predicted,
         e_opt: u,
         d_opt: -u, // the reverse ranking
+        e_opt_cov: u,
+        d_opt_cov: -u,
         sampling: 0.0,
+        sampling_sound: 0.0,
         random: 0.0,
     }
 }
@@ -84,7 +87,7 @@ fn sparsification_and_ause_on_a_toy_case() {
 
     let s = analyse(&pts, 2);
     assert_eq!(s.points, 10);
-    let e = s.ause.iter().find(|a| a.0 == "E-optimality").unwrap();
-    let d = s.ause.iter().find(|a| a.0 == "D-optimality").unwrap();
+    let e = s.ause.iter().find(|a| a.0 == "E-optimality (authors' t_var)").unwrap();
+    let d = s.ause.iter().find(|a| a.0 == "D-optimality (authors' t_var)").unwrap();
     assert!(e.1 < 1e-12 && d.1 > 0.1, "E {e:?} D {d:?}");
 }

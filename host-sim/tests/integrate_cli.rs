@@ -90,6 +90,41 @@ fn integrate_round_trips_through_npy_and_npz() {
         assert_eq!(&map.mean[i * D..(i + 1) * D], &v.mean[..]);
         assert_eq!(&map.psi[i * D..(i + 1) * D], &v.psi[..]);
     }
+    check_authors_uncertainty(&out, &map);
+}
+
+/// `tvar`, `eopt`, `dopt` as the authors' `publish_map.py` computes them from the written λ and Ψ, in f64:
+/// t_var = (λ+1)/λ²·Ψ, E-opt = max t_var, D-opt = exp(mean log t_var), masked (NaN) where λ ≤ 2.
+fn check_authors_uncertainty(path: &std::path::Path, map: &host_sim::npy_io::NpzMap) {
+    let mut npz = host_sim::npy_io::NpzReader::open(path).unwrap();
+    let (tshape, tvar) = npz.array::<f32>("tvar").unwrap();
+    let (eshape, eopt) = npz.array::<f32>("eopt").unwrap();
+    let (dshape, dopt) = npz.array::<f32>("dopt").unwrap();
+    let v = map.keys.len() as u64;
+    assert_eq!((tshape, eshape, dshape), (vec![v, D as u64], vec![v], vec![v]));
+    let (mut gated, mut live) = (0, 0);
+    for i in 0..map.keys.len() {
+        let l = map.lambda[i] as f64;
+        let row = &tvar[i * D..(i + 1) * D];
+        if !(l > 2.0) {
+            gated += 1;
+            assert!(row.iter().all(|x| x.is_nan()) && eopt[i].is_nan() && dopt[i].is_nan());
+            continue;
+        }
+        live += 1;
+        let want: Vec<f64> = map.psi[i * D..(i + 1) * D]
+            .iter()
+            .map(|&p| (l + 1.0) / (l * l) * p as f64)
+            .collect();
+        for (a, b) in row.iter().zip(&want) {
+            assert!((*a as f64 - b).abs() <= 1e-6 * b, "tvar {a} vs {b}");
+        }
+        let e = want.iter().cloned().fold(f64::MIN, f64::max);
+        let d = (want.iter().map(|x| x.ln()).sum::<f64>() / D as f64).exp();
+        assert!((eopt[i] as f64 - e).abs() <= 1e-6 * e, "eopt {} vs {e}", eopt[i]);
+        assert!((dopt[i] as f64 - d).abs() <= 2e-5 * d, "dopt {} vs {d}", dopt[i]);
+    }
+    assert!(gated > 0 && live > 0, "both cases covered: {gated} gated, {live} live");
 }
 
 fn run_integrate(args: &[&std::ffi::OsStr]) -> (bool, String) {

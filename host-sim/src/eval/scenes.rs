@@ -284,7 +284,7 @@ pub fn run(
     let p = dir.join("uncertainty_eopt.png");
     figures::uncertainty_map(
         &p,
-        &format!("{}: E-optimality uncertainty ({which})", scene.name()),
+        &format!("{}: E-optimality, authors' t_var ({which})", scene.name()),
         &top,
         &test.config,
     )
@@ -313,8 +313,8 @@ pub fn run(
     );
     let mut md = experiment::table(&format!("Scene: {}", scene.name()), &results, &notes);
     md += &format!(
-        "\nUncertainty of LatentBKI (f = 3) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points):\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
-        spars.points
+        "\nUncertainty of LatentBKI (f = 3) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points). Sampling: {} draws, variance of the predicted class's score:\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
+        spars.points, setup.sampling_draws
     );
     for (name, a, m) in &spars.ause {
         md += &format!("| {name} | {:.2} | {:.2} |\n", 100.0 * a, 100.0 * m);
