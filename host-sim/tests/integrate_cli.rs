@@ -125,6 +125,48 @@ fn check_authors_uncertainty(path: &std::path::Path, map: &host_sim::npy_io::Npz
         assert!((dopt[i] as f64 - d).abs() <= 2e-5 * d, "dopt {} vs {d}", dopt[i]);
     }
     assert!(gated > 0 && live > 0, "both cases covered: {gated} gated, {live} live");
+    numpy_reads_the_uncertainty(path);
+}
+
+/// If numpy is installed, it reads the file and recomputes the three arrays as `publish_map.py` does
+/// (`np.log`, `np.max(np.abs(..))`, the `t_v > 2` mask). Without numpy this check is skipped and says so
+/// (the Rust reader above reads numpy's own `savez` files too: `npy_io`'s tests).
+fn numpy_reads_the_uncertainty(path: &std::path::Path) {
+    let has_numpy = Command::new("python3")
+        .args(["-c", "import numpy"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_numpy {
+        eprintln!("numpy not installed: skipping the numpy round trip");
+        return;
+    }
+    let script = r#"
+import sys, numpy as np
+m = np.load(sys.argv[1])
+lam, psi = m["lambda"].astype(np.float64)[:, None], m["psi"].astype(np.float64)
+tv = (lam + 1) / (lam * lam) * psi
+live = (lam > 2).reshape(-1)
+assert m["tvar"].dtype == np.float32 and m["tvar"].shape == psi.shape
+assert np.isnan(m["tvar"][~live]).all() and np.isnan(m["eopt"][~live]).all() and np.isnan(m["dopt"][~live]).all()
+assert np.allclose(m["tvar"][live], tv[live], rtol=1e-6, atol=0)
+e = np.max(np.abs(tv[live]), axis=-1)
+d = np.exp(np.sum(np.log(tv[live]), axis=-1) / tv.shape[-1])
+assert np.allclose(m["eopt"][live], e, rtol=1e-6, atol=0)
+assert np.allclose(m["dopt"][live], d, rtol=2e-5, atol=0)
+print("numpy ok", int(live.sum()), int((~live).sum()))
+"#;
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "numpy check failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).starts_with("numpy ok"));
 }
 
 fn run_integrate(args: &[&std::ffi::OsStr]) -> (bool, String) {
