@@ -129,55 +129,55 @@ impl<const D: usize> VoxelStats<D> {
 /// numpy's `log` gives in the authors' code.
 fn max_and_mean_log2<const D: usize>(xs: &[f32; D]) -> (f32, f32) {
     const L: usize = 8;
+    // Up to 16 mantissas (each in [1, 2)) per lane are multiplied before the lane is renormalised.
+    const BLOCK: usize = 16 * L;
     if D == 0 {
         return (0.0, 0.0);
     }
-    let mut max = [f32::NEG_INFINITY; L];
-    let mut prod = [1.0f32; L];
+    let mut max = [0.0f32; L];
     let mut exps = [0i32; L];
-    let mut bad = 0u32;
-    let chunks = xs.chunks_exact(L);
-    let rest = chunks.remainder();
-    for (i, c) in chunks.enumerate() {
-        for l in 0..L {
-            let x = c[l];
-            let bits = x.to_bits();
-            // Positive, normal and finite: 0x0080_0000 ≤ bits ≤ 0x7F7F_FFFF.
-            bad |= u32::from(bits.wrapping_sub(0x0080_0000) >= 0x7F00_0000);
-            exps[l] += ((bits >> 23) & 0xFF) as i32 - 127;
-            prod[l] *= f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000);
-            max[l] = max[l].max(x);
-        }
-        if i % 16 == 15 {
+    let mut bad = [0u32; L];
+    let mut sum = 0.0f32;
+    let whole = D - D % L;
+    for block in xs[..whole].chunks(BLOCK) {
+        let mut prod = [1.0f32; L];
+        for c in block.chunks_exact(L) {
             for l in 0..L {
-                let bits = prod[l].to_bits();
-                exps[l] += ((bits >> 23) & 0xFF) as i32 - 127;
-                prod[l] = f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000);
+                let x = c[l];
+                let bits = x.to_bits();
+                // Positive, normal and finite: 0x0080_0000 ≤ bits ≤ 0x7F7F_FFFF.
+                bad[l] |= u32::from(bits.wrapping_sub(0x0080_0000) >= 0x7F00_0000);
+                exps[l] += (bits >> 23) as i32 - 127;
+                prod[l] *= f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000);
+                max[l] = if x > max[l] { x } else { max[l] };
             }
         }
+        let mut p = 1.0f32;
+        for l in 0..L {
+            let bits = prod[l].to_bits();
+            exps[l] += (bits >> 23) as i32 - 127;
+            p *= f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000); // 8 factors < 2: p < 256
+        }
+        sum += crate::f32math::log2(p);
     }
-    let mut m = f32::NEG_INFINITY;
-    let mut e = 0i32;
-    let mut p = 1.0f32;
-    for l in 0..L {
-        m = m.max(max[l]);
-        e += exps[l];
-        let bits = prod[l].to_bits();
-        e += ((bits >> 23) & 0xFF) as i32 - 127;
-        p *= f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000); // 8 factors < 2: p < 256
-    }
-    let mut sum = e as f32 + crate::f32math::log2(p);
-    for &x in rest {
-        m = m.max(x);
-        bad |= u32::from(!(x > 0.0 && x.is_finite()));
+    let mut m = max.iter().fold(0.0f32, |a, &b| if b > a { b } else { a });
+    sum += exps.iter().sum::<i32>() as f32;
+    let mut any_bad = bad.iter().any(|&b| b != 0);
+    for &x in &xs[whole..] {
+        m = if x > m { x } else { m };
+        any_bad |= !(x > 0.0 && x.is_finite());
         sum += crate::f32math::log2(x);
     }
-    if bad != 0 {
+    if any_bad {
         // Exact path: 0 gives −∞ (D-optimality 0), a negative NaN, like numpy.
         let mut m = f32::NEG_INFINITY;
         let mut sum = 0.0f32;
         for &x in xs {
-            m = if x.is_nan() || m.is_nan() { f32::NAN } else { m.max(x) };
+            m = if x.is_nan() || m.is_nan() {
+                f32::NAN
+            } else {
+                m.max(x)
+            };
             sum += if x < 0.0 || x.is_nan() {
                 f32::NAN
             } else if x == 0.0 {
@@ -191,8 +191,16 @@ fn max_and_mean_log2<const D: usize>(xs: &[f32; D]) -> (f32, f32) {
     (m, sum / D as f32)
 }
 
+/// 2^x in f32 (the D-optimality's one power): the polynomial of [`crate::sampling`], with the range kept
+/// inside f32's normal exponents (−∞ and anything below 2⁻¹²⁶ give 0, NaN stays NaN).
 fn exp2(x: f32) -> f32 {
-    libm::exp2f(x)
+    if x.is_nan() {
+        return f32::NAN;
+    }
+    if !(x > -126.0) {
+        return 0.0;
+    }
+    crate::sampling::exp2_fast(x.min(127.0))
 }
 
 #[cfg(test)]

@@ -241,17 +241,18 @@ fn log2_fast(x: f32) -> f32 {
 
 /// 2^y for −126 < y < 127, branch-free (vectorises): relative error below 3e-7.
 #[inline(always)]
-fn exp2_fast(y: f32) -> f32 {
+pub(crate) fn exp2_fast(y: f32) -> f32 {
     // Round to the nearest integer by adding 1.5·2²³ (no float → int conversion, which would not
     // vectorise with Rust's saturating semantics): the integer sits in the low mantissa bits.
     const MAGIC: f32 = 12_582_912.0;
     let r = y + MAGIC;
     let i = r.to_bits().wrapping_sub(MAGIC.to_bits()) as i32;
     let x = (y - (r - MAGIC)) * core::f32::consts::LN_2; // |x| ≤ ½ ln 2
-    // e^x, |x| ≤ 0.347: Taylor to x⁶ leaves < 2e-8.
+                                                         // e^x, |x| ≤ 0.347: Taylor to x⁶ leaves < 2e-8.
     let p = 1.0
         + x * (1.0
-            + x * (0.5 + x * (1.0 / 6.0 + x * (1.0 / 24.0 + x * (1.0 / 120.0 + x * (1.0 / 720.0))))));
+            + x * (0.5
+                + x * (1.0 / 6.0 + x * (1.0 / 24.0 + x * (1.0 / 120.0 + x * (1.0 / 720.0))))));
     p * f32::from_bits((i.wrapping_add(127) as u32) << 23)
 }
 
@@ -575,7 +576,10 @@ mod tests {
 
     fn back_project_f64(p: &Pca<D, F>, x: &[f64; D]) -> [f64; F] {
         core::array::from_fn(|j| {
-            p.mean[j] as f64 + (0..D).map(|d| p.components[d][j] as f64 * x[d]).sum::<f64>()
+            p.mean[j] as f64
+                + (0..D)
+                    .map(|d| p.components[d][j] as f64 * x[d])
+                    .sum::<f64>()
         })
     }
 
@@ -609,10 +613,16 @@ mod tests {
             });
             let want = variance_f64(&scores);
             let got = authors_score_variance(&v, &cb, c, &t).unwrap() as f64;
-            assert!((got - want).abs() <= 1e-5 * want, "category {c}: {got} vs {want}");
+            assert!(
+                (got - want).abs() <= 1e-5 * want,
+                "category {c}: {got} vs {want}"
+            );
         }
         let young = VoxelStats { lambda: 2.0, ..v };
-        assert!(authors_score_variance(&young, &cb, 0, &t).is_none(), "λ > 2 gate");
+        assert!(
+            authors_score_variance(&young, &cb, 0, &t).is_none(),
+            "λ > 2 gate"
+        );
         assert!(authors_score_variance(&v, &cb, 3, &t).is_none());
         assert!(authors_score_variance(&v, &cb, 0, &t[..1]).is_none());
     }
@@ -644,7 +654,10 @@ mod tests {
             });
             let want = variance_f64(&scores);
             let got = sound_score_variance(&v, &cb, c, &z, &chi2).unwrap() as f64;
-            assert!((got - want).abs() <= 1e-4 * want, "category {c}: {got} vs {want}");
+            assert!(
+                (got - want).abs() <= 1e-4 * want,
+                "category {c}: {got} vs {want}"
+            );
         }
         assert!(sound_score_variance(&v, &cb, 0, &z, &chi2[..5]).is_none());
     }
@@ -673,15 +686,24 @@ mod tests {
             assert!(m.abs() < 0.02, "t({nu}) mean {m}");
             // ν = 3.5 has a heavy fourth moment: the sample variance converges slowly.
             let tol = if nu < 4.0 { 0.15 } else { 0.03 };
-            assert!((v / want - 1.0).abs() < tol, "t({nu}) variance {v} vs {want}");
+            assert!(
+                (v / want - 1.0).abs() < tol,
+                "t({nu}) variance {v} vs {want}"
+            );
             // P(|T| < 1): 0.6187 (ν = 3.5), 0.6591 (ν = 10), by numerical integration of the density.
             let p = if nu < 4.0 { 0.6187 } else { 0.6591 };
             let inside = buf.iter().filter(|x| x.abs() < 1.0).count() as f64 / buf.len() as f64;
-            assert!((inside - p).abs() < 0.005, "t({nu}): P(|T| < 1) = {inside} vs {p}");
+            assert!(
+                (inside - p).abs() < 0.005,
+                "t({nu}): P(|T| < 1) = {inside} vs {p}"
+            );
         }
         let g: [f32; 20_000] = core::array::from_fn(|_| s.chi_squared(6.0));
         let (m, v) = moments(&g);
-        assert!((m - 6.0).abs() < 0.1 && (v / 12.0 - 1.0).abs() < 0.05, "χ²₆: {m} {v}");
+        assert!(
+            (m - 6.0).abs() < 0.1 && (v / 12.0 - 1.0).abs() < 0.05,
+            "χ²₆: {m} {v}"
+        );
     }
 
     #[test]
@@ -699,7 +721,10 @@ mod tests {
             let r = sqrt_fast(z) as f64;
             worst[2] = worst[2].max((r / (z as f64).sqrt() - 1.0).abs());
         }
-        assert!(worst[0] < 5e-7 && worst[1] < 5e-7 && worst[2] < 5e-7, "{worst:?}");
+        assert!(
+            worst[0] < 5e-7 && worst[1] < 5e-7 && worst[2] < 5e-7,
+            "{worst:?}"
+        );
         assert_eq!(sqrt_fast(0.0), 0.0);
     }
 
@@ -725,7 +750,9 @@ mod tests {
             assert!(s.score_variance(mode, &young, &cb, 1, 30).is_none());
             assert!(s.score_variance(mode, &tight, &cb, 1, 1).is_none());
             assert!(s.score_variance(mode, &tight, &cb, 3, 30).is_none());
-            assert!(s.score_variance(mode, &tight, &cb, 1, MAX_DRAWS + 1).is_none());
+            assert!(s
+                .score_variance(mode, &tight, &cb, 1, MAX_DRAWS + 1)
+                .is_none());
         }
         let mut all = [0.0f32; 3];
         assert_eq!(s.authors_all_categories(&tight, &cb, 30, &mut all), 3);

@@ -291,7 +291,11 @@ mod tests {
         for d in 0..N {
             let want = prior.psi as f64 + s_bar[d];
             let rel = (v.psi[d] as f64 - want).abs() / want;
-            assert!(rel <= 1e-3, "Ψ[{d}] = {} vs {want}: relative error {rel:e}", v.psi[d]);
+            assert!(
+                rel <= 1e-3,
+                "Ψ[{d}] = {} vs {want}: relative error {rel:e}",
+                v.psi[d]
+            );
             assert!((v.mean[d] as f64 - y_bar[d]).abs() <= 1e-5 * y_bar[d]);
         }
         // The raw-sum form on the same data, to show what the test guards against.
@@ -307,7 +311,11 @@ mod tests {
             s2 += *k as f32 * b;
         }
         let raw = (s2 - w * (s1 / w) * (s1 / w)).max(0.0) as f64;
-        assert!((raw - s_bar[0]).abs() / s_bar[0] > 0.5, "raw form: {raw} vs {}", s_bar[0]);
+        assert!(
+            (raw - s_bar[0]).abs() / s_bar[0] > 0.5,
+            "raw form: {raw} vs {}",
+            s_bar[0]
+        );
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //! Run: `cargo run --release -p host-sim --example scratch_sweep`.
 
 use latentbki::synth::SELF_TEST;
-use latentbki::{packed_len, to_map_frame, BatchSums, Evicted, LocalMap, SinkFull};
+use latentbki::{packed_len, to_map_frame, Evicted, LocalMap, SinkFull, VoxelStats};
 
 const D: usize = 64;
 const P: usize = packed_len(D);
@@ -38,7 +38,7 @@ fn writes<const G: usize>(scenario: usize) -> u32 {
 }
 
 fn row<const G: usize>() {
-    let group_bytes = core::mem::size_of::<BatchSums<D>>() + 16;
+    let group_bytes = core::mem::size_of::<VoxelStats<D>>() + 16;
     println!(
         "| {G} | {:.1} KiB | {} | {} |",
         (G * group_bytes) as f32 / 1024.0,

@@ -13,6 +13,9 @@
 //! The test prints one line per measure (`--nocapture`) and asserts that both change the decoded map by
 //! less than 0.1 % of voxels.
 
+// Loops over a dimension index that address several parallel arrays read like the equations.
+#![allow(clippy::needless_range_loop)]
+
 use host_sim::eval::experiment::{self, Setup};
 use host_sim::eval::methods::D;
 use host_sim::eval::scenes::{Scene, SceneOptions, SceneSource};
@@ -120,9 +123,24 @@ fn authors_epsilons_and_dense_update_change_nothing_measurable() {
         let (mut dmu, mut dpsi, mut dl) = (Vec::new(), Vec::new(), 0.0f64);
         for (k, a) in ours.voxels() {
             let b = &theirs[k];
-            same += usize::from(dec.decoder.argmax(&a.mean).map(|x| x.0) == dec.decoder.argmax(&b.mean).map(|x| x.0));
-            let norm = a.mean.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt().max(1e-12);
-            let diff = a.mean.iter().zip(&b.mean).map(|(x, y)| (*x as f64 - *y as f64).powi(2)).sum::<f64>().sqrt();
+            same += usize::from(
+                dec.decoder.argmax(&a.mean).map(|x| x.0)
+                    == dec.decoder.argmax(&b.mean).map(|x| x.0),
+            );
+            let norm = a
+                .mean
+                .iter()
+                .map(|x| (*x as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+                .max(1e-12);
+            let diff = a
+                .mean
+                .iter()
+                .zip(&b.mean)
+                .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+                .sum::<f64>()
+                .sqrt();
             dmu.push(diff / norm);
             for (x, y) in a.psi.iter().zip(&b.psi) {
                 dpsi.push((*x as f64 - *y as f64).abs() / (*x as f64));
@@ -140,7 +158,9 @@ fn authors_epsilons_and_dense_update_change_nothing_measurable() {
                 let Ok(key) = VoxelKey::from_position(*p, 1.0 / config.voxel_size()) else {
                     continue;
                 };
-                let pred = |v: Option<&VoxelStats<D>>| v.and_then(|v| dec.decoder.argmax(&v.mean)).map(|x| x.0);
+                let pred = |v: Option<&VoxelStats<D>>| {
+                    v.and_then(|v| dec.decoder.argmax(&v.mean)).map(|x| x.0)
+                };
                 right_ours += usize::from(pred(ours.get(&key)) == Some(usize::from(*c)));
                 right_theirs += usize::from(pred(theirs.get(&key)) == Some(usize::from(*c)));
             }

@@ -87,7 +87,15 @@ fn sparsification_and_ause_on_a_toy_case() {
 
     let s = analyse(&pts, 2);
     assert_eq!(s.points, 10);
-    let e = s.ause.iter().find(|a| a.0 == "E-optimality (authors' t_var)").unwrap();
-    let d = s.ause.iter().find(|a| a.0 == "D-optimality (authors' t_var)").unwrap();
+    let e = s
+        .ause
+        .iter()
+        .find(|a| a.0 == "E-optimality (authors' t_var)")
+        .unwrap();
+    let d = s
+        .ause
+        .iter()
+        .find(|a| a.0 == "D-optimality (authors' t_var)")
+        .unwrap();
     assert!(e.1 < 1e-12 && d.1 > 0.1, "E {e:?} D {d:?}");
 }

@@ -271,7 +271,13 @@ pub fn uncertainties(
         d_tvar: tvar.d,
         e_cov: cov.e,
         d_cov: cov.d,
-        sampling_authors: sampler.score_variance(SamplingMode::Authors, v, decoder, category, draws)?,
+        sampling_authors: sampler.score_variance(
+            SamplingMode::Authors,
+            v,
+            decoder,
+            category,
+            draws,
+        )?,
         sampling_sound: sampler.score_variance(SamplingMode::Sound, v, decoder, category, draws)?,
     })
 }

@@ -32,8 +32,11 @@ pub struct Scored {
     pub random: f32,
 }
 
-/// The rankings of the analysis, in table order: name and key (larger = more uncertain).
-pub const RANKINGS: [(&str, fn(&Scored) -> f32); 7] = [
+/// A ranking: its name and its key (larger = more uncertain).
+pub type Ranking = (&'static str, fn(&Scored) -> f32);
+
+/// The rankings of the analysis, in table order.
+pub const RANKINGS: [Ranking; 7] = [
     ("E-optimality (authors' t_var)", |p| p.e_opt),
     ("D-optimality (authors' t_var)", |p| p.d_opt),
     ("E-optimality (Student-t covariance)", |p| p.e_opt_cov),
