@@ -13,14 +13,16 @@
 //! | gate, draws | λ > 2, 30 | λ > 2 (the score's variance exists), 30 |
 //! | reported | sample variance (n − 1) of the query's score | same |
 //!
-//! Each mode is a pure formula on given standard draws ([`authors_score_variance`],
-//! [`sound_score_variance`]; tests compare them with f64 computations on fixed draws) plus a
-//! [`Sampler`] that makes the draws fast in f32 with no allocation: eight xoshiro128++ streams side by
-//! side (the loops vectorise), Student-t variates by Bailey's polar method (one t from two uniforms, a
-//! log₂ and an exp₂, the same distribution torch draws as normal/√(χ²/λ)), normals by Marsaglia's polar
-//! method, χ² by Marsaglia–Tsang. The authors' score is linear in the draw, so the constant part
-//! (μ and the PCA mean) drops out of the variance and a draw costs one D-dimensional dot product with
-//! t_var ⊙ W F̂_w (the decode folded into the compressed space, as in [`crate::decode`]).
+//! Each mode is a pure formula on given standard draws ([`authors_score_variance`] on per-dimension
+//! Student-t draws, [`authors_score_variance_from_chi2`] on their χ² parts, [`sound_score_variance`]; tests
+//! compare each with an f64 computation on fixed draws) plus a [`Sampler`] that makes the draws fast in
+//! f32 with no allocation: eight xorshift128 streams side by side (the loops vectorise), normals by
+//! Marsaglia's polar method, χ² by Marsaglia–Tsang, Student-t by Bailey's polar method. The authors' score
+//! is linear in the draw, so the constant part (μ and the PCA mean) drops out of the variance and a draw
+//! is one D-dimensional dot product with t_var ⊙ W F̂_w (the decode folded into the compressed space, as
+//! in [`crate::decode`]); and since torch draws each t as Z·√(λ/G), given the G's that dot product is
+//! normal, so the [`Sampler`] draws one normal per draw instead of D (the same distribution; a test
+//! compares the two).
 //!
 //! Host side only: nothing on the firmware path calls it (it needs neither heap nor f64, though).
 
@@ -660,6 +662,85 @@ mod tests {
             );
         }
         assert!(sound_score_variance(&v, &cb, 0, &z, &chi2[..5]).is_none());
+    }
+
+    /// The χ² form of the authors' formula, literally in f64 on fixed draws: score_k − const =
+    /// ζ_k·√(λ Σ_d a_d²/G_kd), a = t_var ⊙ W F_w/‖F_w‖ with W F_w from the full-dimensional embedding.
+    #[test]
+    fn authors_chi2_form_equals_f64_on_fixed_draws() {
+        let p = pca();
+        let emb = embeddings();
+        let cb = Codebook::<D, 3>::from_pca(&p, &emb).unwrap();
+        let v = voxel();
+        let mut sampler = Sampler::<D>::new(13);
+        let mut g = [[0.0f32; D]; AUTHORS_DRAWS];
+        sampler.fill_chi_squared(v.lambda, g.as_flattened_mut());
+        let mut zeta = [0.0f32; AUTHORS_DRAWS];
+        sampler.fill_normal(&mut zeta);
+        let l = v.lambda as f64;
+        for (c, e) in emb.iter().enumerate() {
+            let norm = e.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
+            let a: [f64; D] = core::array::from_fn(|d| {
+                let wf: f64 = (0..F)
+                    .map(|j| p.components[d][j] as f64 * e[j] as f64)
+                    .sum();
+                (l + 1.0) / (l * l) * v.psi[d] as f64 * wf / norm
+            });
+            let scores: [f64; AUTHORS_DRAWS] = core::array::from_fn(|k| {
+                zeta[k] as f64
+                    * (l * (0..D).map(|d| a[d] * a[d] / g[k][d] as f64).sum::<f64>()).sqrt()
+            });
+            let want = variance_f64(&scores);
+            let got = authors_score_variance_from_chi2(&v, &cb, c, &g, &zeta).unwrap() as f64;
+            assert!(
+                (got - want).abs() <= 1e-5 * want,
+                "category {c}: {got} vs {want}"
+            );
+        }
+        assert!(authors_score_variance_from_chi2(&v, &cb, 0, &g, &zeta[..4]).is_none());
+    }
+
+    /// The sampler's authors' path (χ² form, one normal per draw) and the literal per-dimension Student-t
+    /// draws give the same distribution of the 30-draw variance: both means match the exact expectation
+    /// Σ_d a_d² λ/(λ−2), and their quartiles agree.
+    #[test]
+    fn authors_chi2_form_has_the_literal_distribution() {
+        let p = pca();
+        let cb = Codebook::<D, 3>::from_pca(&p, &embeddings()).unwrap();
+        let v = VoxelStats {
+            lambda: 9.0,
+            ..voxel()
+        };
+        let c = cb.categories()[1];
+        let f = (v.lambda + 1.0) / (v.lambda * v.lambda);
+        let exact: f64 = (0..D)
+            .map(|d| (f * v.psi[d] * c.direction[d] / c.norm) as f64)
+            .map(|a| a * a * v.lambda as f64 / (v.lambda as f64 - 2.0))
+            .sum();
+        const REPS: usize = 6000;
+        let mut s = Sampler::<D>::new(21);
+        let mut fast = [0.0f32; REPS];
+        let mut literal = [0.0f32; REPS];
+        let mut t = [[0.0f32; D]; AUTHORS_DRAWS];
+        for r in 0..REPS {
+            fast[r] = s
+                .score_variance(SamplingMode::Authors, &v, &cb, 1, AUTHORS_DRAWS)
+                .unwrap();
+            s.fill_student_t(v.lambda, t.as_flattened_mut());
+            literal[r] = authors_score_variance(&v, &cb, 1, &t).unwrap();
+        }
+        for (name, xs) in [("fast", &mut fast), ("literal", &mut literal)] {
+            let (m, _) = moments(&xs[..]);
+            assert!(
+                (m / exact - 1.0).abs() < 0.04,
+                "{name}: mean {m} vs {exact}"
+            );
+            xs.sort_by(f32::total_cmp);
+        }
+        for q in [REPS / 4, REPS / 2, 3 * REPS / 4] {
+            let (a, b) = (fast[q] as f64, literal[q] as f64);
+            assert!((a / b - 1.0).abs() < 0.05, "quantile {q}: {a} vs {b}");
+        }
     }
 
     fn moments(xs: &[f32]) -> (f64, f64) {
