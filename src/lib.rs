@@ -5,13 +5,14 @@
 //!
 //! Every voxel keeps a normal-inverse-Wishart posterior (confidence λ, mean μ, diagonal Ψ) over
 //! PCA-compressed vision-language features. A batch of sensor points updates every voxel within the sparse
-//! kernel's reach by the closed-form Bayesian kernel update; inference gives the expectation, the Student-t
-//! predictive variance and E-/D-optimality or sampling uncertainty; decoding compares μ with text embeddings
-//! of any words.
+//! kernel's reach by the closed-form Bayesian kernel update; inference gives the expectation and
+//! E-/D-optimality (of the authors' t_var or the Student-t covariance), [`sampling`] the sampling
+//! uncertainty (the authors' procedure or the model's); decoding compares μ with text embeddings of any
+//! words.
 //!
 //! The modules follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
 //! (voxel keys, poses) → [`batch`] (validate, group, spread) → [`stats`] (the update) → [`inference`]
-//! (uncertainty) → [`decode`] (open-vocabulary queries).
+//! and [`sampling`] (uncertainty) → [`decode`] (open-vocabulary queries).
 #![no_std]
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
