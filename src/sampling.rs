@@ -785,6 +785,15 @@ mod tests {
             (m - 6.0).abs() < 0.1 && (v / 12.0 - 1.0).abs() < 0.05,
             "χ²₆: {m} {v}"
         );
+        // The vectorised fill, at a small and a large ν (mean ν, variance 2ν).
+        for nu in [2.5f32, 40.0] {
+            s.fill_chi_squared(nu, &mut buf);
+            let (m, v) = moments(&buf);
+            let nu = nu as f64;
+            assert!((m / nu - 1.0).abs() < 0.01, "χ²({nu}) mean {m}");
+            assert!((v / (2.0 * nu) - 1.0).abs() < 0.03, "χ²({nu}) variance {v}");
+            assert!(buf.iter().all(|&x| x > 0.0 && x.is_finite()));
+        }
     }
 
     #[test]
