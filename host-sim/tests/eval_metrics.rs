@@ -32,6 +32,14 @@ fn confusion_to_accuracy_iou_miou() {
     // Class 2 never occurs in the truth: no IoU, not averaged.
     assert_eq!(c.iou(2), None);
     assert!((c.miou() - 0.5).abs() < 1e-12);
+    // The authors' average counts class 2 (only predicted) as 0: (3/4 + 1/4 + 0) / 3.
+    assert!((c.miou_authors() - 1.0 / 3.0).abs() < 1e-6);
+    // With every class present the two agree (up to the authors' 1e-6 in the union).
+    let mut full = Confusion::new(2);
+    for (t, p) in [(0, Some(0)), (0, Some(1)), (1, Some(1))] {
+        full.add(t, p);
+    }
+    assert!((full.miou_authors() - full.miou()).abs() < 1e-6);
 
     // Merging adds counts.
     let mut d = Confusion::new(3);
