@@ -17,7 +17,7 @@
 //! Student-t draws, [`authors_score_variance_from_chi2`] on their χ² parts, [`sound_score_variance`]; tests
 //! compare each with an f64 computation on fixed draws) plus a [`Sampler`] that makes the draws fast in
 //! f32 with no allocation: eight xorshift128 streams side by side (the loops vectorise), normals by
-//! Marsaglia's polar method, χ² by Marsaglia–Tsang, Student-t by Bailey's polar method. The authors' score
+//! Box–Muller (no rejection), χ² by Marsaglia–Tsang, Student-t by Bailey's polar method. The authors' score
 //! is linear in the draw, so the constant part (μ and the PCA mean) drops out of the variance and a draw
 //! is one D-dimensional dot product with t_var ⊙ W F̂_w (the decode folded into the compressed space, as
 //! in [`crate::decode`]); and since torch draws each t as Z·√(λ/G), given the G's that dot product is
@@ -270,16 +270,26 @@ fn sqrt_fast(x: f32) -> f32 {
     x * y
 }
 
-/// Append the first `m` of `kept` to `out` at `n` (as many as fit); returns how many were written. A
-/// whole fixed-size block is copied when it fits (no `memmove` call for a few floats).
+/// Append `vals[l]` for every `ok[l]` to `out` at `n`, in order (as many as fit); returns how many. The
+/// compaction is branch-free (a branch per lane would mispredict ~1 in 5) and, when a whole block fits,
+/// stores straight into `out` (a scratch array read back as a vector stalls on store forwarding).
 #[inline(always)]
-fn put<const N: usize>(out: &mut [f32], n: usize, kept: &[f32; N], m: usize) -> usize {
+fn compact<const N: usize>(out: &mut [f32], n: usize, vals: &[f32; N], ok: &[bool; N]) -> usize {
+    let mut m = 0;
     match out.get_mut(n..n + N) {
         Some(block) => {
-            block.copy_from_slice(kept);
+            for l in 0..N {
+                block[m.min(N - 1)] = vals[l];
+                m += usize::from(ok[l]);
+            }
             m
         }
         None => {
+            let mut kept = [0.0f32; N];
+            for l in 0..N {
+                kept[m.min(N - 1)] = vals[l];
+                m += usize::from(ok[l]);
+            }
             let take = m.min(out.len().saturating_sub(n));
             for (o, k) in out.iter_mut().skip(n).zip(&kept[..take]) {
                 *o = *k;
@@ -287,6 +297,44 @@ fn put<const N: usize>(out: &mut [f32], n: usize, kept: &[f32; N], m: usize) -> 
             take
         }
     }
+}
+
+/// Append the whole block `vals` to `out` at `n` (as many as fit); returns how many were written.
+#[inline(always)]
+fn put<const N: usize>(out: &mut [f32], n: usize, vals: &[f32; N]) -> usize {
+    match out.get_mut(n..n + N) {
+        Some(block) => {
+            block.copy_from_slice(vals);
+            N
+        }
+        None => {
+            let take = N.min(out.len().saturating_sub(n));
+            for (o, k) in out.iter_mut().skip(n).zip(vals) {
+                *o = *k;
+            }
+            take
+        }
+    }
+}
+
+/// (sin πx, cos πx) for |x| < 1, branch-free (vectorises): the half angle h = πx/2 by Taylor series
+/// (to h¹¹ and h¹², error below 6e-8), then the double-angle formulas.
+#[inline(always)]
+fn sin_cos_pi(x: f32) -> (f32, f32) {
+    let h = x * core::f32::consts::FRAC_PI_2;
+    let h2 = h * h;
+    let s = h
+        * (1.0
+            + h2 * (-1.0 / 6.0
+                + h2 * (1.0 / 120.0
+                    + h2 * (-1.0 / 5040.0 + h2 * (1.0 / 362_880.0 + h2 * (-1.0 / 39_916_800.0))))));
+    let c = 1.0
+        + h2 * (-0.5
+            + h2 * (1.0 / 24.0
+                + h2 * (-1.0 / 720.0
+                    + h2 * (1.0 / 40_320.0
+                        + h2 * (-1.0 / 3_628_800.0 + h2 * (1.0 / 479_001_600.0))))));
+    (2.0 * s * c, c * c - s * s)
 }
 
 /// The variate generators: the lane RNG and a few cached normals.
@@ -417,41 +465,24 @@ impl Variates {
                 let p = exp2_fast(k * log2_fast(w));
                 t[l] = a * sqrt_fast(nu * (p - 1.0) / w);
             }
-            // Branch-free compaction of the accepted lanes (a branch per lane mispredicts ~1 in 5).
-            let mut kept = [0.0f32; LANES];
-            let mut m = 0;
-            for l in 0..LANES {
-                kept[m] = t[l];
-                m += usize::from(ok[l]);
-            }
-            n += put(out, n, &kept, m);
+            n += compact(out, n, &t, &ok);
         }
     }
 
-    /// Fill `out` with standard normal variates (Marsaglia's polar method, both of each pair).
+    /// Fill `out` with standard normal variates (Box–Muller, both of each pair).
     fn fill_normal(&mut self, out: &mut [f32]) {
+        // Box–Muller: no rejection, so no compaction; both of each pair are used.
         let mut n = 0;
         while n < out.len() {
             let (u, v) = (self.rng.next(), self.rng.next());
-            let mut z = [[0.0f32; 2]; LANES];
-            let mut ok = [false; LANES];
+            let mut z = [0.0f32; 2 * LANES];
             for l in 0..LANES {
-                let a = signed_unit(u[l]);
-                let b = signed_unit(v[l]);
-                let w = a * a + b * b;
-                ok[l] = w < 1.0;
-                let w = if ok[l] { w } else { 0.5 };
-                let f = sqrt_fast(-2.0 * core::f32::consts::LN_2 * log2_fast(w) / w);
-                z[l] = [a * f, b * f];
+                let r = sqrt_fast(-2.0 * core::f32::consts::LN_2 * log2_fast(open_unit(u[l])));
+                let (s, c) = sin_cos_pi(signed_unit(v[l]));
+                z[l] = r * c;
+                z[l + LANES] = r * s;
             }
-            let mut kept = [0.0f32; 2 * LANES];
-            let mut m = 0;
-            for l in 0..LANES {
-                kept[m] = z[l][0];
-                kept[m + 1] = z[l][1];
-                m += 2 * usize::from(ok[l]);
-            }
-            n += put(out, n, &kept, m);
+            n += put(out, n, &z);
         }
     }
 
@@ -507,29 +538,25 @@ impl Variates {
                     let v3 = v * v * v;
                     let x2 = x[l] * x[l];
                     let u = open_unit(u[l]);
-                    ok[l] = v > 0.0 && u < 1.0 - 0.0331 * x2 * x2;
-                    doubt[l] = v > 0.0 && !ok[l];
+                    // `&`, not `&&`: no branch, so the loop vectorises.
+                    ok[l] = (v > 0.0) & (u < 1.0 - 0.0331 * x2 * x2);
+                    doubt[l] = (v > 0.0) & !ok[l];
                     g[l] = 2.0 * d * v3;
                 }
                 if doubt.iter().any(|&b| b) {
+                    // The logarithmic test for every lane at once (branch-free, vectorises); only the
+                    // doubtful lanes take its answer.
                     for l in 0..LANES {
-                        if doubt[l] {
-                            let v = 1.0 + c * x[l];
-                            let v3 = v * v * v;
-                            let un = open_unit(u[l]);
-                            ok[l] = core::f32::consts::LN_2 * log2_fast(un)
-                                < 0.5 * x[l] * x[l]
-                                    + d * (1.0 - v3 + 3.0 * core::f32::consts::LN_2 * log2_fast(v));
-                        }
+                        let v = 1.0 + c * x[l];
+                        let v = if doubt[l] { v } else { 1.0 };
+                        let v3 = v * v * v;
+                        let lhs = core::f32::consts::LN_2 * log2_fast(open_unit(u[l]));
+                        let rhs = 0.5 * x[l] * x[l]
+                            + d * (1.0 - v3 + 3.0 * core::f32::consts::LN_2 * log2_fast(v));
+                        ok[l] |= doubt[l] & (lhs < rhs);
                     }
                 }
-                let mut kept = [0.0f32; LANES];
-                let mut m = 0;
-                for l in 0..LANES {
-                    kept[m] = g[l];
-                    m += usize::from(ok[l]);
-                }
-                n += put(out, n, &kept, m);
+                n += compact(out, n, &g, &ok);
                 if n == out.len() {
                     return;
                 }
@@ -800,7 +827,7 @@ mod tests {
     fn fast_elementary_functions_are_accurate() {
         let mut worst = [0.0f64; 3];
         for i in 1..200_000 {
-            let x = i as f32 / 200_000.0; // (0, 1): the polar methods' W
+            let x = i as f32 / 200_000.0; // (0, 1): the polar method's W, Box–Muller's u
             let l = log2_fast(x) as f64;
             // Absolute error plus the f32 rounding of the result.
             worst[0] = worst[0].max((l - (x as f64).log2()).abs() / (1.0 + l.abs()));
@@ -816,6 +843,16 @@ mod tests {
             "{worst:?}"
         );
         assert_eq!(sqrt_fast(0.0), 0.0);
+        let mut trig = 0.0f64;
+        for i in -100_000..100_000 {
+            let x = i as f32 / 100_000.0;
+            let (s, c) = sin_cos_pi(x);
+            let a = core::f64::consts::PI * x as f64;
+            trig = trig
+                .max((s as f64 - libm::sin(a)).abs())
+                .max((c as f64 - libm::cos(a)).abs());
+        }
+        assert!(trig < 5e-7, "sin/cos error {trig:e}");
     }
 
     #[test]
