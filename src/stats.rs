@@ -15,6 +15,13 @@
 //! group of points seen through the kernel weight k (k̄ = k·n, S̄ = k·S), and the merge of two maps. This
 //! is the exact parallel combination of weighted moments (Chan et al.), so batch, streaming and merged
 //! results are equal up to rounding — the property tests prove it.
+//!
+//! Every path keeps moments in this centred form (mean and scatter about the mean), never raw sums
+//! Σky, Σky²: the raw form S̄ = Σky² − k̄ȳ² cancels catastrophically when the features are far from zero
+//! compared with their spread (mean 100, spread 0.01: S̄ off by 9–26× in f32). The maps add a point to its
+//! voxel's observation statistics with Welford's update ([`crate::obs::ObsStats::add_point`], one division
+//! per point) and gather a target's batch from its neighbours with Chan's merge (the same [`combine`]); the
+//! test `offset_features_keep_their_scatter` holds Ψ to 1e-3 relative of f64 for such features.
 
 use crate::config::Prior;
 
@@ -237,6 +244,87 @@ mod tests {
             assert!((v.mean[d] as f64 - m1[d]).abs() < 1e-6, "mean[{d}]");
             assert!((v.psi[d] as f64 - p1[d]).abs() < 1e-5, "psi[{d}]");
         }
+    }
+
+    /// Features of mean 100 and spread 0.01, as the maps keep them (Welford per point into each voxel's
+    /// statistics, voxels gathered into a target's batch through kernel weights, one update): Ψ within 1e-3
+    /// relative of the f64 computation. The raw-sum form this replaced was off by 9–26×.
+    #[test]
+    fn offset_features_keep_their_scatter() {
+        const N: usize = 4;
+        let mut state = 0x2545F491u32;
+        let mut unit = move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state as f64 / u32::MAX as f64 - 0.5
+        };
+        let mut groups = [(0.0f64, [[0.0f64; N]; 200]); 9];
+        for (g, (k, pts)) in groups.iter_mut().enumerate() {
+            *k = 1.0 - 0.07 * g as f64;
+            for y in pts.iter_mut() {
+                *y = core::array::from_fn(|d| 100.0 + d as f64 + 0.02 * unit());
+            }
+        }
+        // f64: the paper's k̄, ȳ, S̄ of the whole batch, then the update of the prior.
+        let k_bar: f64 = groups.iter().map(|(k, p)| k * p.len() as f64).sum();
+        let y_bar: [f64; N] = core::array::from_fn(|d| {
+            groups
+                .iter()
+                .map(|(k, p)| p.iter().map(|y| k * y[d]).sum::<f64>())
+                .sum::<f64>()
+                / k_bar
+        });
+        let s_bar: [f64; N] = core::array::from_fn(|d| {
+            groups
+                .iter()
+                .map(|(k, p)| p.iter().map(|y| k * (y[d] - y_bar[d]).powi(2)).sum::<f64>())
+                .sum()
+        });
+        let prior = Prior {
+            lambda: 0.0,
+            mean: 0.0,
+            psi: 1e-3,
+        };
+        // f32, as the maps do it.
+        let mut batch = crate::obs::ObsStats::<N>::EMPTY;
+        for (k, pts) in &groups {
+            let mut voxel = crate::obs::ObsStats::<N>::EMPTY;
+            for y in pts {
+                voxel.add_point(&y.map(|v| v as f32));
+            }
+            batch.merge_scaled(*k as f32, &voxel);
+        }
+        let mut v = VoxelStats::<N>::from_prior(&prior);
+        v.absorb_observations(1.0, &batch);
+        for d in 0..N {
+            let want = prior.psi as f64 + s_bar[d];
+            let rel = (v.psi[d] as f64 - want).abs() / want;
+            assert!(
+                rel <= 1e-3,
+                "Ψ[{d}] = {} vs {want}: relative error {rel:e}",
+                v.psi[d]
+            );
+            assert!((v.mean[d] as f64 - y_bar[d]).abs() <= 1e-5 * y_bar[d]);
+        }
+        // The raw-sum form on the same data, to show what the test guards against.
+        let (mut w, mut s1, mut s2) = (0.0f32, 0.0f32, 0.0f32);
+        for (k, pts) in &groups {
+            let (mut a, mut b) = (0.0f32, 0.0f32);
+            for y in pts {
+                a += y[0] as f32;
+                b += (y[0] as f32) * (y[0] as f32);
+            }
+            w += *k as f32 * pts.len() as f32;
+            s1 += *k as f32 * a;
+            s2 += *k as f32 * b;
+        }
+        let raw = (s2 - w * (s1 / w) * (s1 / w)).max(0.0) as f64;
+        assert!(
+            (raw - s_bar[0]).abs() / s_bar[0] > 0.5,
+            "raw form: {raw} vs {}",
+            s_bar[0]
+        );
     }
 
     #[test]
