@@ -2,49 +2,19 @@
 //! uncertainty with 30 draws against a 50-phrase vocabulary (decode μ to its phrase, then the variance of
 //! that phrase's score; and the authors' variant that scores every phrase of every draw).
 //! The paper (GPU): 2.3 ms for the optimality criteria, 5,661 ms for sampling, 10,000 voxels.
-//! Run: `cargo bench -p latentbki --bench uncertainty`.
+//! Run: `cargo bench -p host-sim --bench uncertainty` (`host-sim bench` prints the same figures, one run).
 use criterion::{criterion_group, criterion_main, Criterion};
 use latentbki::sampling::AUTHORS_DRAWS;
-use latentbki::{Codebook, Sampler, SamplingMode, Spread, VoxelStats};
+use latentbki::{Sampler, SamplingMode, Spread};
 use std::hint::black_box;
 use std::time::Duration;
 
-const D: usize = 64;
-const K: usize = 50;
-const VOXELS: usize = 10_000;
-
-fn lcg(state: &mut u64) -> f32 {
-    *state = state
-        .wrapping_mul(6_364_136_223_846_793_005)
-        .wrapping_add(1_442_695_040_888_963_407);
-    (*state >> 40) as f32 / (1u64 << 24) as f32
-}
-
-fn voxels() -> Vec<VoxelStats<D>> {
-    let mut s = 17u64;
-    (0..VOXELS)
-        .map(|_| {
-            let lambda = 2.5 + 60.0 * lcg(&mut s) * lcg(&mut s);
-            VoxelStats {
-                lambda,
-                mean: core::array::from_fn(|_| lcg(&mut s) - 0.5),
-                psi: core::array::from_fn(|_| 1.0 + 0.2 * lambda * lcg(&mut s)),
-            }
-        })
-        .collect()
-}
-
-fn codebook() -> Codebook<D, K> {
-    let mut s = 99u64;
-    let e: Vec<[f32; D]> = (0..K)
-        .map(|_| core::array::from_fn(|_| lcg(&mut s) - 0.5))
-        .collect();
-    Codebook::from_embeddings(&e).expect("valid embeddings")
-}
+const D: usize = host_sim::bench::D;
+const K: usize = host_sim::bench::PHRASES;
 
 fn bench(c: &mut Criterion) {
-    let vs = voxels();
-    let cb = codebook();
+    let vs = host_sim::bench::uncertainty_voxels();
+    let cb = host_sim::bench::uncertainty_codebook();
     let mut g = c.benchmark_group("uncertainty_10k_voxels");
     for spread in [Spread::AuthorsTVar, Spread::StudentTCovariance] {
         let name = match spread {
