@@ -20,7 +20,7 @@
 //! Σky, Σky²: the raw form S̄ = Σky² − k̄ȳ² cancels catastrophically when the features are far from zero
 //! compared with their spread (mean 100, spread 0.01: S̄ off by 9–26× in f32). The maps add a point to its
 //! voxel's observation statistics with Welford's update ([`crate::obs::ObsStats::add_point`], one division
-//! per point) and gather a target's batch from its neighbours with Chan's merge (the same [`combine`]); the
+//! per point) and gather a target's batch from its neighbours with Chan's merge (the same `combine`); the
 //! test `offset_features_keep_their_scatter` holds Ψ to 1e-3 relative of f64 for such features.
 
 use crate::config::Prior;
