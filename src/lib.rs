@@ -5,9 +5,10 @@
 //!
 //! Every voxel keeps a normal-inverse-Wishart posterior (confidence λ, mean μ, diagonal Ψ) over
 //! PCA-compressed vision-language features. A batch of sensor points updates every voxel within the sparse
-//! kernel's reach by the closed-form Bayesian kernel update; inference gives the expectation, the Student-t
-//! predictive variance and E-/D-optimality or sampling uncertainty; decoding compares μ with text embeddings
-//! of any words.
+//! kernel's reach by the closed-form Bayesian kernel update; inference gives the expectation and
+//! E-/D-optimality (of the authors' t_var or the Student-t covariance), [`sampling`] the sampling
+//! uncertainty (the authors' procedure or the model's); decoding compares μ with text embeddings of any
+//! words.
 //!
 //! ## A robot in ten lines
 //!
@@ -58,7 +59,8 @@
 //!
 //! They follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
 //! (voxel keys, poses) → [`batch`] (validating a point) → [`obs`] (what a voxel observed, and gathering
-//! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`] (uncertainty) →
+//! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`]
+//! and [`sampling`] (uncertainty) →
 //! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
 //! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder) →
 //! [`mapper`] (all of it as one value). [`f32math`] holds the single-precision elementary functions the
@@ -83,6 +85,7 @@ pub mod local_map;
 pub mod mapper;
 pub mod obs;
 pub mod quant;
+pub mod sampling;
 pub mod sink;
 pub mod stats;
 pub mod wire;
@@ -108,6 +111,10 @@ pub use kernel::KernelLut;
 pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
 pub use stats::VoxelStats;
 
+// ----- uncertainty
+pub use inference::{Optimality, Spread};
+pub use sampling::{Sampler, SamplingMode};
+
 // ----- the base station's side of the link
 pub use frame::{FrameDecoder, SeqTracker};
 pub use wire::{SessionConfig, SummaryCodec};
@@ -117,5 +124,5 @@ pub use decode::{Codebook, CodebookError, Pca};
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;
-/// Re-exported so users seed the same PRNG the library's sampling was tested with.
+/// Re-exported: the PRNG the library's tests and the host's simulations use.
 pub use rand_xoshiro;

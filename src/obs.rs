@@ -25,7 +25,7 @@
 use crate::config::Prior;
 use crate::kernel::KernelLut;
 use crate::key::VoxelKey;
-use crate::stats::{update_dim, update_dim_point, VoxelStats};
+use crate::stats::{combine, update_dim_point, VoxelStats};
 
 /// What was observed in one voxel: the (weighted) point count n, the mean m and the diagonal scatter
 /// S = Σ(y − m)² of the features. Also the kernel-weighted moments of a neighbourhood (K, ȳ, S̄).
@@ -77,24 +77,11 @@ impl<const D: usize> ObsStats<D> {
     /// seen through one kernel weight. `k · other.count ≤ 0` (or NaN) changes nothing.
     #[inline]
     pub fn merge_scaled(&mut self, k: f32, other: &Self) {
-        let w = k * other.count;
-        if !(w > 0.0) {
-            return;
-        }
-        let total = self.count + w;
-        let gain = w / total;
-        let cross = self.count * gain;
-        for i in 0..D {
-            update_dim(
-                &mut self.mean[i],
-                &mut self.scatter[i],
-                gain,
-                cross,
-                other.mean[i],
-                k * other.scatter[i],
-            );
-        }
-        self.count = total;
+        combine(
+            (&mut self.count, &mut self.mean, &mut self.scatter),
+            k,
+            (other.count, &other.mean, &other.scatter),
+        );
     }
 
     /// Merge another set of observations (Chan's pairwise formula: exact, order-free up to rounding).

@@ -5,6 +5,8 @@
 //! The inputs are the same as the criterion benches' (`cargo bench -p host-sim --bench integrate`, for
 //! development): (a) 100k surface points resampled from the real LiDAR tile with 2 cm jitter, (b) 100k
 //! uniform points in a 6 m cube (almost every point alone in its voxel); f = 3, D = 64, 0.1 m voxels.
+//! Uncertainty (as `cargo bench -p host-sim --bench uncertainty`): 10,000 voxels, E- and D-optimality, and
+//! sampling with 30 draws against a 50-phrase vocabulary.
 
 use crate::sim::tile::Tile;
 use crate::{ObsMap, ReferenceMap};
@@ -12,7 +14,8 @@ use anyhow::Result;
 use latentbki::nalgebra::Isometry3;
 use latentbki::rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
-use latentbki::MapConfig;
+use latentbki::sampling::AUTHORS_DRAWS;
+use latentbki::{Codebook, MapConfig, Sampler, SamplingMode, Spread, VoxelStats};
 use std::time::{Duration, Instant};
 
 /// Feature dimension of the benchmarks.
@@ -72,6 +75,42 @@ pub fn cube() -> Batch {
     let cls: Vec<u16> = pts.iter().map(|p| (p[0] / 1.5) as u16).collect();
     let f = features(&cls, &mut rng);
     (pts, f)
+}
+
+/// Phrases of the uncertainty benchmark's vocabulary.
+pub const PHRASES: usize = 50;
+/// Voxels of the uncertainty benchmark.
+pub const UNCERTAINTY_VOXELS: usize = 10_000;
+
+fn lcg(state: &mut u64) -> f32 {
+    *state = state
+        .wrapping_mul(6_364_136_223_846_793_005)
+        .wrapping_add(1_442_695_040_888_963_407);
+    (*state >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// 10,000 posteriors with λ from 2.5 to 62.5 and Ψ growing with λ.
+pub fn uncertainty_voxels() -> Vec<VoxelStats<D>> {
+    let mut s = 17u64;
+    (0..UNCERTAINTY_VOXELS)
+        .map(|_| {
+            let lambda = 2.5 + 60.0 * lcg(&mut s) * lcg(&mut s);
+            VoxelStats {
+                lambda,
+                mean: core::array::from_fn(|_| lcg(&mut s) - 0.5),
+                psi: core::array::from_fn(|_| 1.0 + 0.2 * lambda * lcg(&mut s)),
+            }
+        })
+        .collect()
+}
+
+/// A 50-phrase vocabulary of random directions.
+pub fn uncertainty_codebook() -> Codebook<D, PHRASES> {
+    let mut s = 99u64;
+    let e: Vec<[f32; D]> = (0..PHRASES)
+        .map(|_| core::array::from_fn(|_| lcg(&mut s) - 0.5))
+        .collect();
+    Codebook::from_embeddings(&e).expect("valid embeddings")
 }
 
 /// Median wall time of `runs` calls of `f` (each call gets fresh state from `setup`, untimed).
@@ -154,5 +193,52 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         ms(gather),
         map.observed_len()
     );
+
+    let vs = uncertainty_voxels();
+    let cb = uncertainty_codebook();
+    for (spread, name) in [
+        (Spread::AuthorsTVar, "authors' t_var"),
+        (Spread::StudentTCovariance, "Student-t covariance"),
+    ] {
+        let t = median_time(
+            args.runs,
+            || (),
+            |_| {
+                vs.iter()
+                    .filter_map(|v| v.optimality(spread))
+                    .map(|o| o.e + o.d)
+                    .sum::<f32>()
+            },
+        );
+        println!(
+            "E- and D-optimality 10k voxels ({name}): {:.2} ms (paper, GPU: 2.3 ms)",
+            ms(t)
+        );
+    }
+    let mut sampler = Sampler::<D>::new(7);
+    for (mode, name) in [
+        (SamplingMode::Authors, "authors' procedure"),
+        (SamplingMode::Sound, "sound"),
+    ] {
+        let t = median_time(
+            args.reference_runs,
+            || (),
+            |_| {
+                let mut acc = 0.0f32;
+                for v in &vs {
+                    if let Some((best, _)) = cb.argmax(&v.mean) {
+                        acc += sampler
+                            .score_variance(mode, v, &cb, best, AUTHORS_DRAWS)
+                            .unwrap_or(0.0);
+                    }
+                }
+                acc
+            },
+        );
+        println!(
+            "sampling uncertainty 10k voxels, {AUTHORS_DRAWS} draws, {PHRASES} phrases ({name}): {:.0} ms (paper, GPU: 5,661 ms)",
+            ms(t)
+        );
+    }
     Ok(())
 }

@@ -478,7 +478,9 @@ pub fn read_poses(path: &Path) -> Result<Vec<Isometry3<f32>>, IoError> {
     Ok(poses)
 }
 
-/// Write a map as `.npz`: `keys` (V×3 int32), `lambda` (V), `mean` (V×D), `psi` (V×D) float32.
+/// Write a map as `.npz`: `keys` (V×3 int32), `lambda` (V), `mean` (V×D), `psi` (V×D) float32, and the
+/// uncertainty in the authors' convention (their `publish_map.py`): `tvar` (V×D, (λ+1)/λ²·Ψ), `eopt` (V,
+/// max of t_var) and `dopt` (V, exp(mean log t_var)), all NaN where λ ≤ 2.
 pub fn write_map_npz<const D: usize>(
     path: &Path,
     voxels: &[(VoxelKey, &VoxelStats<D>)],
@@ -491,6 +493,16 @@ pub fn write_map_npz<const D: usize>(
     let lambda = voxels.iter().map(|(_, s)| s.lambda);
     let mean = voxels.iter().flat_map(|(_, s)| s.mean);
     let psi = voxels.iter().flat_map(|(_, s)| s.psi);
+    let tvar = voxels
+        .iter()
+        .flat_map(|(_, s)| s.t_var().unwrap_or([f32::NAN; D]));
+    let authors = |s: &VoxelStats<D>| s.optimality(latentbki::Spread::AuthorsTVar);
+    let eopt = voxels
+        .iter()
+        .map(|(_, s)| authors(s).map_or(f32::NAN, |o| o.e));
+    let dopt = voxels
+        .iter()
+        .map(|(_, s)| authors(s).map_or(f32::NAN, |o| o.d));
     let write = || -> std::io::Result<()> {
         let opts = compression.options();
         zip.start_file("keys.npy", opts)?;
@@ -501,6 +513,12 @@ pub fn write_map_npz<const D: usize>(
         write_npy(&mut zip, &[v, D as u64], mean)?;
         zip.start_file("psi.npy", opts)?;
         write_npy(&mut zip, &[v, D as u64], psi)?;
+        zip.start_file("tvar.npy", opts)?;
+        write_npy(&mut zip, &[v, D as u64], tvar)?;
+        zip.start_file("eopt.npy", opts)?;
+        write_npy(&mut zip, &[v], eopt)?;
+        zip.start_file("dopt.npy", opts)?;
+        write_npy(&mut zip, &[v], dopt)?;
         zip.finish()?.flush()
     };
     write().map_err(io_err(path))

@@ -32,6 +32,14 @@ fn confusion_to_accuracy_iou_miou() {
     // Class 2 never occurs in the truth: no IoU, not averaged.
     assert_eq!(c.iou(2), None);
     assert!((c.miou() - 0.5).abs() < 1e-12);
+    // The authors' average counts class 2 (only predicted) as 0: (3/4 + 1/4 + 0) / 3.
+    assert!((c.miou_authors() - 1.0 / 3.0).abs() < 1e-6);
+    // With every class present the two agree (up to the authors' 1e-6 in the union).
+    let mut full = Confusion::new(2);
+    for (t, p) in [(0, Some(0)), (0, Some(1)), (1, Some(1))] {
+        full.add(t, p);
+    }
+    assert!((full.miou_authors() - full.miou()).abs() < 1e-6);
 
     // Merging adds counts.
     let mut d = Confusion::new(3);
@@ -51,7 +59,10 @@ fn pt(truth: u16, predicted: u16, u: f32) -> Scored {
         predicted,
         e_opt: u,
         d_opt: -u, // the reverse ranking
+        e_opt_cov: u,
+        d_opt_cov: -u,
         sampling: 0.0,
+        sampling_sound: 0.0,
         random: 0.0,
     }
 }
@@ -84,7 +95,15 @@ fn sparsification_and_ause_on_a_toy_case() {
 
     let s = analyse(&pts, 2);
     assert_eq!(s.points, 10);
-    let e = s.ause.iter().find(|a| a.0 == "E-optimality").unwrap();
-    let d = s.ause.iter().find(|a| a.0 == "D-optimality").unwrap();
+    let e = s
+        .ause
+        .iter()
+        .find(|a| a.0 == "E-optimality (authors' t_var)")
+        .unwrap();
+    let d = s
+        .ause
+        .iter()
+        .find(|a| a.0 == "D-optimality (authors' t_var)")
+        .unwrap();
     assert!(e.1 < 1e-12 && d.1 > 0.1, "E {e:?} D {d:?}");
 }

@@ -108,6 +108,97 @@ fn integrate_round_trips_through_npy_and_npz() {
             );
         }
     }
+    check_authors_uncertainty(&out, &map);
+}
+
+/// `tvar`, `eopt`, `dopt` as the authors' `publish_map.py` computes them from the written λ and Ψ, in f64:
+/// t_var = (λ+1)/λ²·Ψ, E-opt = max t_var, D-opt = exp(mean log t_var), masked (NaN) where λ ≤ 2.
+fn check_authors_uncertainty(path: &std::path::Path, map: &host_sim::npy_io::NpzMap) {
+    let mut npz = host_sim::npy_io::NpzReader::open(path).unwrap();
+    let (tshape, tvar) = npz.array::<f32>("tvar").unwrap();
+    let (eshape, eopt) = npz.array::<f32>("eopt").unwrap();
+    let (dshape, dopt) = npz.array::<f32>("dopt").unwrap();
+    let v = map.keys.len() as u64;
+    assert_eq!(
+        (tshape, eshape, dshape),
+        (vec![v, D as u64], vec![v], vec![v])
+    );
+    let (mut gated, mut live) = (0, 0);
+    for i in 0..map.keys.len() {
+        let l = map.lambda[i] as f64;
+        let row = &tvar[i * D..(i + 1) * D];
+        if l <= 2.0 || l.is_nan() {
+            gated += 1;
+            assert!(row.iter().all(|x| x.is_nan()) && eopt[i].is_nan() && dopt[i].is_nan());
+            continue;
+        }
+        live += 1;
+        let want: Vec<f64> = map.psi[i * D..(i + 1) * D]
+            .iter()
+            .map(|&p| (l + 1.0) / (l * l) * p as f64)
+            .collect();
+        for (a, b) in row.iter().zip(&want) {
+            assert!((*a as f64 - b).abs() <= 1e-6 * b, "tvar {a} vs {b}");
+        }
+        let e = want.iter().cloned().fold(f64::MIN, f64::max);
+        let d = (want.iter().map(|x| x.ln()).sum::<f64>() / D as f64).exp();
+        assert!(
+            (eopt[i] as f64 - e).abs() <= 1e-6 * e,
+            "eopt {} vs {e}",
+            eopt[i]
+        );
+        assert!(
+            (dopt[i] as f64 - d).abs() <= 2e-5 * d,
+            "dopt {} vs {d}",
+            dopt[i]
+        );
+    }
+    assert!(
+        gated > 0 && live > 0,
+        "both cases covered: {gated} gated, {live} live"
+    );
+    numpy_reads_the_uncertainty(path);
+}
+
+/// If numpy is installed, it reads the file and recomputes the three arrays as `publish_map.py` does
+/// (`np.log`, `np.max(np.abs(..))`, the `t_v > 2` mask). Without numpy this check is skipped and says so
+/// (the Rust reader above reads numpy's own `savez` files too: `npy_io`'s tests).
+fn numpy_reads_the_uncertainty(path: &std::path::Path) {
+    let has_numpy = Command::new("python3")
+        .args(["-c", "import numpy"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_numpy {
+        eprintln!("numpy not installed: skipping the numpy round trip");
+        return;
+    }
+    let script = r#"
+import sys, numpy as np
+m = np.load(sys.argv[1])
+lam, psi = m["lambda"].astype(np.float64)[:, None], m["psi"].astype(np.float64)
+tv = (lam + 1) / (lam * lam) * psi
+live = (lam > 2).reshape(-1)
+assert m["tvar"].dtype == np.float32 and m["tvar"].shape == psi.shape
+assert np.isnan(m["tvar"][~live]).all() and np.isnan(m["eopt"][~live]).all() and np.isnan(m["dopt"][~live]).all()
+assert np.allclose(m["tvar"][live], tv[live], rtol=1e-6, atol=0)
+e = np.max(np.abs(tv[live]), axis=-1)
+d = np.exp(np.sum(np.log(tv[live]), axis=-1) / tv.shape[-1])
+assert np.allclose(m["eopt"][live], e, rtol=1e-6, atol=0)
+assert np.allclose(m["dopt"][live], d, rtol=2e-5, atol=0)
+print("numpy ok", int(live.sum()), int((~live).sum()))
+"#;
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "numpy check failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).starts_with("numpy ok"));
 }
 
 fn run_integrate(args: &[&std::ffi::OsStr]) -> (bool, String) {

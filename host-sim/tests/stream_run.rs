@@ -198,8 +198,10 @@ fn codec_trade_off_table() {
     let evicted = &r.robots[0].evicted;
     let (count, bytes) = summary_bytes(&r.base);
     let head = bytes as f64 / count as f64 - SummaryCodec::DEFAULT.code_len(D) as f64;
+    // The robot's own map: its evicted statistics merged and gathered in f32.
+    let truth = evicted_truth(&r.world, &r.robots);
     println!(
-        "mean bits | psi blocks | bytes/summary | argmax agreement of the voxel's observed mean"
+        "mean bits | psi blocks | bytes/summary | argmax agreement with the robot's map | RMS ‖Δμ‖/‖μ‖"
     );
     let mut previous = 0.0;
     for bits in 2..=6u8 {
@@ -207,18 +209,33 @@ fn codec_trade_off_table() {
             mean_bits: bits,
             psi_blocks: 8,
         };
-        let mut agree = 0;
-        for (_, _, st) in evicted {
+        // What a base station gathers from the summaries at this codec.
+        let mut received =
+            host_sim::ObsMap::<D>::new(r.world.config.map_config().unwrap()).unwrap();
+        for (k, _, st) in evicted {
             let mut codes = [0u8; 128];
             encode_codes(codec, st, &mut codes).unwrap();
-            let dec = decode_codes::<D>(codec, st.count, &codes).unwrap();
-            agree +=
-                usize::from(label(&r.world.vocab, &dec.mean) == label(&r.world.vocab, &st.mean));
+            received.merge_observations(*k, &decode_codes::<D>(codec, st.count, &codes).unwrap());
         }
-        let agree = agree as f64 / evicted.len() as f64;
+        let got = received.posteriors_sorted();
+        assert_eq!(got.len(), truth.len());
+        let (mut agree, mut sq) = (0usize, 0.0f64);
+        for ((_, g), (_, t)) in got.iter().zip(&truth) {
+            agree += usize::from(label(&r.world.vocab, &g.mean) == label(&r.world.vocab, &t.mean));
+            let num: f32 = g
+                .mean
+                .iter()
+                .zip(&t.mean)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum();
+            let den: f32 = t.mean.iter().map(|x| x * x).sum();
+            sq += f64::from(num / den.max(1e-12));
+        }
+        let agree = agree as f64 / truth.len() as f64;
         println!(
-            "{bits} | 8 | {:.1} | {agree:.4}",
-            head + codec.code_len(D) as f64
+            "{bits} | 8 | {:.1} | {agree:.4} | {:.4}",
+            head + codec.code_len(D) as f64,
+            (sq / truth.len() as f64).sqrt()
         );
         assert!(agree + 0.005 >= previous, "more bits should not agree less");
         previous = agree;

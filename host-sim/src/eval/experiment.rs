@@ -7,8 +7,9 @@
 //! 3. Every method sees the same frames. After integrating frame t, each held-out point of frame t is
 //!    predicted from the map as it is then (the voxel it falls in; never observed = unknown = wrong) and
 //!    counted in the method's confusion matrix.
-//! 4. For the LatentBKI f = 3 map, each held-out point also gets its voxel's E-optimality, D-optimality and
-//!    sampling uncertainty, for the sparsification analysis.
+//! 4. For the LatentBKI f = 3 map, each held-out point also gets its voxel's E- and D-optimality (the
+//!    authors' t_var and the Student-t covariance) and sampling uncertainty (the authors' procedure and the
+//!    model's predictive), for the sparsification analysis.
 //!
 //! Methods (and the sparsity sweep's runs) run in parallel threads (one run per thread, frames in order), so
 //! results do not depend on scheduling: same seed, same table.
@@ -25,7 +26,7 @@ use crate::sim::{mix_all, pca, unit, Sequence};
 use indicatif::{ProgressBar, ProgressStyle};
 use latentbki::rand_xoshiro::rand_core::SeedableRng;
 use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
-use latentbki::{MapConfig, Pca, VoxelStats};
+use latentbki::{MapConfig, Pca, Sampler, SamplingMode, Spread, VoxelStats};
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -38,8 +39,8 @@ pub struct Setup {
     pub seed: u64,
     /// Fraction of each frame held out.
     pub holdout: f32,
-    /// Draws per voxel for the sampling uncertainty.
-    pub sampling_draws: u32,
+    /// Draws per voxel for the sampling uncertainty (the authors': 30).
+    pub sampling_draws: usize,
     /// Training points used to fit the PCA.
     pub pca_samples: usize,
     /// Window radius of the device map, metres: at least the sensor range plus the kernel reach, or
@@ -53,7 +54,7 @@ impl Default for Setup {
             noise: NoiseModel::default(),
             seed: 7,
             holdout: 0.2,
-            sampling_draws: 32,
+            sampling_draws: latentbki::sampling::AUTHORS_DRAWS,
             pca_samples: 8000,
             device_window: 11.0,
         }
@@ -262,19 +263,49 @@ fn build(
     })
 }
 
-/// The uncertainties of one voxel for the sparsification analysis (`None` where the covariance is
-/// undefined, λ ≤ 2).
-pub fn uncertainties<R: latentbki::rand_xoshiro::rand_core::RngCore>(
+/// The uncertainties of one voxel for the sparsification analysis, with `category` the class it is
+/// predicted as (the query whose score the sampling varies); `None` where λ ≤ 2 (every measure is gated
+/// there, as in the authors' code).
+pub fn uncertainties(
     v: &VoxelStats<D>,
     decoder: &Decoder,
-    draws: u32,
-    rng: &mut R,
-) -> Option<(f32, f32, f32)> {
-    let e = v.e_optimality()?;
-    let d = v.d_optimality()?;
-    let mut var = [0.0f32; super::methods::K];
-    let s = v.sampling_uncertainty(decoder, rng, draws, &mut var)?;
-    Some((e, d, s))
+    category: usize,
+    draws: usize,
+    sampler: &mut Sampler<D>,
+) -> Option<Uncertainties> {
+    let tvar = v.optimality(Spread::AuthorsTVar)?;
+    let cov = v.optimality(Spread::StudentTCovariance)?;
+    Some(Uncertainties {
+        e_tvar: tvar.e,
+        d_tvar: tvar.d,
+        e_cov: cov.e,
+        d_cov: cov.d,
+        sampling_authors: sampler.score_variance(
+            SamplingMode::Authors,
+            v,
+            decoder,
+            category,
+            draws,
+        )?,
+        sampling_sound: sampler.score_variance(SamplingMode::Sound, v, decoder, category, draws)?,
+    })
+}
+
+/// Every uncertainty of one voxel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Uncertainties {
+    /// E-optimality, authors' t_var.
+    pub e_tvar: f32,
+    /// D-optimality, authors' t_var.
+    pub d_tvar: f32,
+    /// E-optimality, Student-t covariance.
+    pub e_cov: f32,
+    /// D-optimality, Student-t covariance.
+    pub d_cov: f32,
+    /// Sampling, the authors' procedure.
+    pub sampling_authors: f32,
+    /// Sampling, the model's predictive with the cosine score.
+    pub sampling_sound: f32,
 }
 
 fn run_one(
@@ -296,7 +327,7 @@ fn run_one(
     let mut scored = Vec::new();
     for (t, f) in frames.iter().enumerate() {
         mapper.integrate(f);
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(mix_all(&[setup.seed, t as u64, 0x5A3]));
+        let mut sampler = Sampler::<D>::new(mix_all(&[setup.seed, t as u64, 0x5A3]));
         for (i, ((p, c), own)) in f
             .held_points
             .iter()
@@ -308,15 +339,18 @@ fn run_one(
             confusion.add(usize::from(*c), pred);
             if score {
                 if let (Some(pred), Some(v)) = (pred, mapper.posterior(*p)) {
-                    if let Some((e, d, s)) =
-                        uncertainties(&v, &dec.decoder, setup.sampling_draws, &mut rng)
+                    if let Some(u) =
+                        uncertainties(&v, &dec.decoder, pred, setup.sampling_draws, &mut sampler)
                     {
                         scored.push(Scored {
                             truth: *c,
                             predicted: pred as u16,
-                            e_opt: e,
-                            d_opt: d,
-                            sampling: s,
+                            e_opt: u.e_tvar,
+                            d_opt: u.d_tvar,
+                            e_opt_cov: u.e_cov,
+                            d_opt_cov: u.d_cov,
+                            sampling: u.sampling_authors,
+                            sampling_sound: u.sampling_sound,
                             random: unit(mix_all(&[setup.seed, t as u64, i as u64, 0x3A4D])),
                         });
                     }

@@ -8,7 +8,7 @@
 use super::experiment::SweepPoint;
 use super::methods::{Decoder, D};
 use super::sparsification::Sparsification;
-use latentbki::{MapConfig, VoxelKey, VoxelStats};
+use latentbki::{MapConfig, Spread, VoxelKey, VoxelStats};
 use plotters::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;
@@ -316,7 +316,8 @@ pub fn query_heatmap(
     )
 }
 
-/// The E-optimality map (log scale); voxels with λ ≤ 2 (covariance undefined) are drawn grey.
+/// The E-optimality map in the authors' convention (max t_var, log scale); voxels with λ ≤ 2 (gated, as
+/// in their code) are drawn grey.
 pub fn uncertainty_map(
     path: &Path,
     title: &str,
@@ -326,7 +327,7 @@ pub fn uncertainty_map(
     let logs: Vec<f32> = top
         .columns
         .values()
-        .filter_map(|(_, v)| v.e_optimality())
+        .filter_map(|(_, v)| v.optimality(Spread::PAPER).map(|o| o.e))
         .filter(|e| *e > 0.0)
         .map(f32::log10)
         .collect();
@@ -347,7 +348,7 @@ pub fn uncertainty_map(
         top,
         config,
         &|v| {
-            Some(match v.e_optimality() {
+            Some(match v.optimality(Spread::PAPER).map(|o| o.e) {
                 Some(e) if e > 0.0 => viridis((e.log10() - lo) / span),
                 _ => RGBColor(200, 200, 200),
             })

@@ -331,6 +331,26 @@ impl OnDevice {
     }
 }
 
+/// The device's eviction sink: every evicted voxel goes to the link (if any) and is merged as the base
+/// station merges it.
+struct Evictions<'a> {
+    evicted: &'a mut HashMap<VoxelKey, ObsStats<D>>,
+    link: &'a mut Option<Box<dyn VoxelSink>>,
+}
+
+impl latentbki::EvictionSink<D> for Evictions<'_> {
+    fn evict(&mut self, e: latentbki::Evicted<'_, D>) -> Result<(), latentbki::SinkFull> {
+        if let Some(l) = self.link.as_mut() {
+            l.voxel(e.key, e.obs, e.residency);
+        }
+        self.evicted
+            .entry(e.key)
+            .and_modify(|m| m.merge(e.obs))
+            .or_insert(*e.obs);
+        Ok(())
+    }
+}
+
 impl ObsLookup<D> for OnDevice {
     fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         self.combined(key)
@@ -339,17 +359,9 @@ impl ObsLookup<D> for OnDevice {
 
 impl Mapper for OnDevice {
     fn integrate(&mut self, frame: &EncodedFrame) {
-        let evicted = &mut self.evicted;
-        let link = &mut self.link;
-        let mut sink = |e: latentbki::Evicted<'_, D>| -> Result<(), latentbki::SinkFull> {
-            if let Some(l) = link.as_mut() {
-                l.voxel(e.key, e.obs, e.residency);
-            }
-            evicted
-                .entry(e.key)
-                .and_modify(|m| m.merge(e.obs))
-                .or_insert(*e.obs);
-            Ok(())
+        let mut sink = Evictions {
+            evicted: &mut self.evicted,
+            link: &mut self.link,
         };
         self.map
             .integrate(&frame.pose, &frame.points, &frame.features, &mut sink);
@@ -370,17 +382,9 @@ impl Mapper for OnDevice {
     }
     fn finish(&mut self, decoder: &Decoder) {
         // Stream what the map still holds: the robot's last word on every voxel.
-        let evicted = &mut self.evicted;
-        let link = &mut self.link;
-        let mut sink = |e: latentbki::Evicted<'_, D>| -> Result<(), latentbki::SinkFull> {
-            if let Some(l) = link.as_mut() {
-                l.voxel(e.key, e.obs, e.residency);
-            }
-            evicted
-                .entry(e.key)
-                .and_modify(|m| m.merge(e.obs))
-                .or_insert(*e.obs);
-            Ok(())
+        let mut sink = Evictions {
+            evicted: &mut self.evicted,
+            link: &mut self.link,
         };
         // The sink never refuses.
         let _ = self.map.flush(&mut sink);

@@ -83,6 +83,26 @@ impl Confusion {
         Some(tp as f64 / (tp + fp + fn_) as f64)
     }
 
+    /// Mean IoU as the authors' evaluation averages it (`generate_results.py`: `union += 1e-6`, then every
+    /// class with union > 0 — that is, all of them): a class absent from both truth and prediction counts
+    /// 0, a class only predicted counts 0. 0 for no classes.
+    pub fn miou_authors(&self) -> f64 {
+        if self.k == 0 {
+            return 0.0;
+        }
+        let sum: f64 = (0..self.k)
+            .map(|c| {
+                let tp = self.get(c, Some(c)) as f64;
+                let row: u64 = (0..=self.k)
+                    .map(|p| self.counts[c * (self.k + 1) + p])
+                    .sum();
+                let col: u64 = (0..self.k).map(|t| self.get(t, Some(c))).sum();
+                tp / ((row + col) as f64 - tp + 1e-6)
+            })
+            .sum();
+        sum / self.k as f64
+    }
+
     /// Mean IoU over classes present in the ground truth; 0 if there are none.
     pub fn miou(&self) -> f64 {
         let ious: Vec<f64> = (0..self.k).filter_map(|c| self.iou(c)).collect();

@@ -9,22 +9,42 @@
 
 use super::metrics::Confusion;
 
-/// One evaluated point with its uncertainties.
+/// One evaluated point with its uncertainties (all of its voxel; λ > 2).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scored {
     /// True class.
     pub truth: u16,
     /// Predicted class.
     pub predicted: u16,
-    /// E-optimality of its voxel.
+    /// E-optimality, the authors' convention (max of t_var = (λ+1)/λ²·Ψ).
     pub e_opt: f32,
-    /// D-optimality of its voxel.
+    /// D-optimality, the authors' convention (geometric mean of t_var).
     pub d_opt: f32,
-    /// Sampling uncertainty of its voxel.
+    /// E-optimality of the Student-t covariance (λ+1)/(λ(λ−2))·Ψ.
+    pub e_opt_cov: f32,
+    /// D-optimality of the Student-t covariance.
+    pub d_opt_cov: f32,
+    /// Sampling uncertainty by the authors' procedure (variance of the predicted class's score).
     pub sampling: f32,
+    /// Sampling uncertainty of the model's predictive (multivariate t, cosine score).
+    pub sampling_sound: f32,
     /// A uniform random number (for the random-ranking baseline).
     pub random: f32,
 }
+
+/// A ranking: its name and its key (larger = more uncertain).
+pub type Ranking = (&'static str, fn(&Scored) -> f32);
+
+/// The rankings of the analysis, in table order.
+pub const RANKINGS: [Ranking; 7] = [
+    ("E-optimality (authors' t_var)", |p| p.e_opt),
+    ("D-optimality (authors' t_var)", |p| p.d_opt),
+    ("E-optimality (Student-t covariance)", |p| p.e_opt_cov),
+    ("D-optimality (Student-t covariance)", |p| p.d_opt_cov),
+    ("sampling (authors' procedure)", |p| p.sampling),
+    ("sampling (multivariate t, cosine)", |p| p.sampling_sound),
+    ("random", |p| p.random),
+];
 
 /// One sparsification curve.
 #[derive(Clone, Debug, PartialEq)]
@@ -97,10 +117,11 @@ pub fn ause(oracle: &[f64], method: &[f64], fractions: &[f64]) -> f64 {
     area / (fractions[fractions.len() - 1] - fractions[0])
 }
 
-/// All curves of the paper's figure: E-opt, D-opt, sampling, and the oracle and random references.
+/// All curves of the paper's figure: E-opt, D-opt (both conventions), sampling (both modes), and the
+/// oracle and random references.
 #[derive(Clone, Debug)]
 pub struct Sparsification {
-    /// Curves in order: E-optimality, D-optimality, sampling, random, oracle.
+    /// Curves in [`RANKINGS`] order, then the oracle.
     pub curves: Vec<Curve>,
     /// AUSE (accuracy, mIoU) per ranking curve except the oracle, same order.
     pub ause: Vec<(String, f64, f64)>,
@@ -112,36 +133,10 @@ pub struct Sparsification {
 pub fn analyse(points: &[Scored], classes: usize) -> Sparsification {
     let fr = default_fractions();
     let oracle = curve("oracle", points, &oracle_order(points), classes, &fr);
-    let mut curves = vec![
-        curve(
-            "E-optimality",
-            points,
-            &rank_by(points, |p| p.e_opt),
-            classes,
-            &fr,
-        ),
-        curve(
-            "D-optimality",
-            points,
-            &rank_by(points, |p| p.d_opt),
-            classes,
-            &fr,
-        ),
-        curve(
-            "sampling",
-            points,
-            &rank_by(points, |p| p.sampling),
-            classes,
-            &fr,
-        ),
-        curve(
-            "random",
-            points,
-            &rank_by(points, |p| p.random),
-            classes,
-            &fr,
-        ),
-    ];
+    let mut curves: Vec<Curve> = RANKINGS
+        .iter()
+        .map(|(name, key)| curve(name, points, &rank_by(points, key), classes, &fr))
+        .collect();
     let ause = curves
         .iter()
         .map(|c| {
