@@ -259,7 +259,8 @@ mod tests {
 
     /// 100 points on a 1 m strip beside `x` (within the 1 m window).
     fn frame(mapper: &mut Small, x: f32) -> usize {
-        let pose = Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity());
+        let pose =
+            Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity());
         let points: Vec<[f32; 3]> = (0..100)
             .map(|i| [0.01 * i as f32 - 0.5, 0.3, 0.02])
             .collect();
