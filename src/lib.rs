@@ -93,11 +93,11 @@ pub mod wire;
 // ----- on the robot
 pub use frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
 pub use local_map::LocalMap;
-pub use mapper::{DrainError, Mapper, Setup, SetupError};
+pub use mapper::{DrainError, Mapper, SensorFrame, Setup, SetupError};
 pub use quant::packed_len;
 
 // ----- configuration
-pub use config::{ConfigError, KernelMode, MapConfig, Prior, DEFAULT_DIM};
+pub use config::{ConfigError, KernelMode, MapConfig, Prior};
 
 // ----- voxels, points and what the map does with them
 pub use batch::{Rejection, RejectionCounts};

@@ -117,17 +117,17 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     }
 
     /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
-    /// behind are queued for the link). Add the frame's points through the returned [`Frame`].
-    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> Frame<'_, D, CAP, P, QB, N> {
+    /// behind are queued for the link). Add the frame's points through the returned [`SensorFrame`].
+    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N> {
         let t = pose.translation.vector;
         self.map.move_window([t.x, t.y, t.z], &mut self.encoder);
-        Frame {
+        SensorFrame {
             mapper: self,
             pose: *pose,
         }
     }
 
-    /// One whole frame: [`Self::begin_frame`] and [`Frame::add_points`]. Returns the points integrated.
+    /// One whole frame: [`Self::begin_frame`] and [`SensorFrame::add_points`]. Returns the points integrated.
     pub fn integrate(
         &mut self,
         pose: &Isometry3<f32>,
@@ -179,7 +179,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
 }
 
 /// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose.
-pub struct Frame<
+pub struct SensorFrame<
     'm,
     const D: usize,
     const CAP: usize,
@@ -192,7 +192,7 @@ pub struct Frame<
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    Frame<'_, D, CAP, P, QB, N>
+    SensorFrame<'_, D, CAP, P, QB, N>
 {
     /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
     /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in

@@ -11,7 +11,7 @@ use crate::eval::methods::{Decoder, VoxelSink};
 use crate::link::{split_frames, ByteLog, Faults, FaultyLink};
 use crate::ObsMap;
 use latentbki::frame::EncoderSettings;
-use latentbki::wire::{SessionConfig, SummaryCodec};
+use latentbki::wire::{SessionConfig, SummaryCodec, NO_FEATURE_SPACE};
 use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
 use std::sync::{Arc, Mutex};
 
@@ -56,7 +56,7 @@ impl DemoLink {
     /// A robot (id 1) streaming maps of `map` with the default summary codec over a link with byte error
     /// rate `ber` (plus the fault mix of the streaming tests), seeded.
     pub fn new(map: &MapConfig, ber: f64, seed: u64) -> anyhow::Result<Arc<Mutex<Self>>> {
-        let config = SessionConfig::new(map, D, SummaryCodec::DEFAULT, 0);
+        let config = SessionConfig::new(map, D, SummaryCodec::DEFAULT, NO_FEATURE_SPACE);
         let encoder = Box::new(
             Encoder::new(config, EncoderSettings::new(1, 1))
                 .map_err(|e| anyhow::anyhow!("encoder: {e:?}"))?,

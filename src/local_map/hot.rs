@@ -86,15 +86,4 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         }
         h
     }
-
-    /// Cool every hot voxel: all statistics then sit in the quantized slots (e.g. before a long pause, or to
-    /// measure the quantized map alone). Observation statistics are unchanged up to the codes' rounding.
-    pub fn cool_all(&mut self) {
-        for h in 0..self.hot_len {
-            self.cool(h);
-        }
-        self.hot_len = 0;
-        self.hot_hand = 0;
-        self.last_hot = 0;
-    }
 }
