@@ -1,37 +1,39 @@
-//! Compact voxel codes: how a 64-d posterior fits in about a hundred bytes.
+//! Compact voxel codes: how a 64-d voxel's observation statistics fit in about a hundred bytes.
 //!
-//! An f32 posterior at D = 64 is 516 B (the authors' code keeps 528 B per voxel). On a microcontroller the
-//! map must hold thousands of voxels, so each voxel is stored as:
-//! - λ as f32 — exact, so kernel mass is conserved and merges at the base station stay exact;
-//! - μ as [`MU_BITS`]-bit signed codes times one per-voxel f16 scale (max |μᵢ| / q_max);
-//! - Ψ as [`PSI_BITS`]-bit codes of its float bit pattern shifted right, i.e. a "minifloat" with
-//!   2^[`PSI_STEPS_LOG2`] steps per octave, relative to a per-voxel base: Ψ is positive and spans orders of
-//!   magnitude, so a logarithmic code keeps the relative error even. Encoding and decoding are bit
-//!   operations (no `log`/`exp` on the hot path).
+//! A voxel's f32 statistics (n, m, S) at D = 64 are 516 B (the authors' code keeps 528 B of posterior per
+//! voxel). On a microcontroller the map must hold thousands of voxels, so each is stored as:
+//! - n as f32 — exact, so every point is counted once through every merge;
+//! - m as [`MU_BITS`]-bit signed codes times one per-voxel f16 scale (max |mᵢ| / q_max);
+//! - S as [`PSI_BITS`]-bit codes of its float bit pattern shifted right, i.e. a "minifloat" with
+//!   2^[`PSI_STEPS_LOG2`] steps per octave, relative to a per-voxel base: S is non-negative and spans orders
+//!   of magnitude, so a logarithmic code keeps the relative error even (a single point's S = 0 codes as 0).
+//!   Encoding and decoding are bit operations (no `log`/`exp` on the hot path).
 //!
-//! Rounding is stochastic (unbiased): when λ is large, one batch moves μ by far less than a code step, and
+//! Rounding is stochastic (unbiased): when n is large, one visit moves m by far less than a code step, and
 //! round-to-nearest would drop every such update; dithered rounding keeps them in expectation. The dither
-//! comes from a per-map xorshift generator, so results are reproducible.
+//! comes from a per-map xorshift generator, so results are reproducible. A voxel is re-encoded only when it
+//! cools out of the local map's f32 hot tier (`crate::local_map`), once per visit.
 
 use crate::obs::ObsStats;
 use half::f16;
 
-// Widths chosen by measurement on the real LiDAR tile (host-sim/tests/local_map_accuracy.rs, D = 64,
-// median relative error of the per-dimension predictive variance with the default / a weak prior; argmax
-// agreement ≥ 99.96 % in every case; bytes per voxel with the slot's 32-bit residency number — measured
-// when it was 16 bits, which made every layout 4 B smaller):
-//   μ 8 + Ψ 8 bits: 156 B/voxel, 1.1 % / 0.6 %      μ 6 + Ψ 5 (4 steps/octave): 116 B, 1.9 % / 2.3 %
-//   μ 6 + Ψ 5 (8 steps/octave, 4 octaves): 116 B, 1.6 % / 3.7 % with a 2.8 % trace bias (range clamping)
-//   μ 5 + Ψ 4: 100 B, 1.9 % / 6.5 %                  μ 4 + Ψ 5: 100 B, 1.8 % / 9.3 % (μ noise feeds Ψ)
-/// Bits per μ code (signed).
+// Widths measured on the 400-frame tile run (host-sim/tests/local_map_accuracy.rs: μ RMS, Ψ p95 with the
+// default / a weak prior) and on the streaming tests' PCA features (μ RMS against the f32 reference), bytes
+// per voxel with slot and index:
+//   m 6 + S 5 (4 steps/octave): 112 B, μ 2.1 % / 6.8 % (PCA), Ψ p95 1.7 % / 7.9 %
+//   m 7 + S 5 (4 steps/octave): 120 B, μ 1.0 % / 3.6 % (PCA), Ψ p95 1.2 % / 5.3 %   ← used
+//   m 8 + S 5 (4 steps/octave): 128 B, μ 0.5 % / 1.9 % (PCA), Ψ p95 1.1 % / 4.5 %
+//   m 7 + S 4 (2 steps/octave): 112 B, Ψ p95 2.1 % / 8.8 %;  m 6 + S 4 (2 steps/octave): 104 B, 10.6 % (fails)
+/// Bits per mean code (signed).
 pub const MU_BITS: u32 = 7;
-/// Bits per Ψ code.
+/// Bits per scatter code.
 pub const PSI_BITS: u32 = 5;
-/// log2 of the Ψ code steps per octave: 4 steps (mantissas 1, 1.25, 1.5, 1.75: steps of 14–25 %), so 5
+/// log2 of the scatter code steps per octave: 4 steps (mantissas 1, 1.25, 1.5, 1.75: steps of 14–25 %), so 5
 /// bits span 8 octaves.
 pub const PSI_STEPS_LOG2: u32 = 2;
 
-/// Bytes of packed codes for a D-dimensional voxel (μ codes, then Ψ codes, each section byte-aligned).
+/// Bytes of packed codes for a D-dimensional voxel (mean codes, then scatter codes, each section
+/// byte-aligned).
 pub const fn packed_len(d: usize) -> usize {
     (d * MU_BITS as usize).div_ceil(8) + (d * PSI_BITS as usize).div_ceil(8)
 }
