@@ -133,13 +133,7 @@ impl<const D: usize> ObsMap<D> {
                         b
                     }
                 };
-                let slot_ref = &mut self.blocks[b as usize].1[local];
-                if *slot_ref == 0 {
-                    self.keys.push(key);
-                    self.stats.push(ObsStats::EMPTY);
-                    *slot_ref = self.stats.len() as u32;
-                }
-                slots[taken] = (*slot_ref - 1, i as u32);
+                slots[taken] = (self.slot_or_insert(b, local, key), i as u32);
                 taken += 1;
             }
             for &(slot, i) in &slots[..taken] {
@@ -153,6 +147,17 @@ impl<const D: usize> ObsMap<D> {
         }
         self.points += accepted as u64;
         accepted
+    }
+
+    /// The slot of voxel `key` (at `local` in block `b`), made empty if it had none.
+    fn slot_or_insert(&mut self, b: u32, local: usize, key: VoxelKey) -> u32 {
+        let slot_ref = &mut self.blocks[b as usize].1[local];
+        if *slot_ref == 0 {
+            self.keys.push(key);
+            self.stats.push(ObsStats::EMPTY);
+            *slot_ref = self.stats.len() as u32;
+        }
+        *slot_ref - 1
     }
 
     fn block_index_or_insert(&mut self, bk: BlockKey) -> u32 {
@@ -171,14 +176,8 @@ impl<const D: usize> ObsMap<D> {
         }
         let (bk, local) = block_of(key);
         let b = self.block_index_or_insert(bk);
-        let slot_ref = &mut self.blocks[b as usize].1[local];
-        if *slot_ref == 0 {
-            self.keys.push(key);
-            self.stats.push(ObsStats::EMPTY);
-            *slot_ref = self.stats.len() as u32;
-        }
-        let slot = *slot_ref as usize - 1;
-        self.stats[slot].merge(obs);
+        let slot = self.slot_or_insert(b, local, key);
+        self.stats[slot as usize].merge(obs);
     }
 
     /// The posterior of one voxel (the prior if nothing is in reach).
