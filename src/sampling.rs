@@ -61,6 +61,21 @@ fn variance(xs: &[f32]) -> f32 {
     xs.iter().map(|x| (x - mean) * (x - mean)).sum::<f32>() / (n - 1.0)
 }
 
+/// The authors' score is linear in a draw: score_k = const + Σ_d a_d t_kd with a = t_var ⊙ W F_w / ‖F_w‖.
+/// `None` for λ ≤ 2 or an unknown category.
+fn authors_coefficients<const D: usize, const K: usize>(
+    v: &VoxelStats<D>,
+    codebook: &Codebook<D, K>,
+    category: usize,
+) -> Option<[f32; D]> {
+    let f = Spread::AuthorsTVar.factor(v.lambda)?;
+    let c = codebook.categories().get(category)?;
+    let inv = 1.0 / c.norm;
+    Some(core::array::from_fn(|d| {
+        f * v.psi[d] * c.direction[d] * inv
+    }))
+}
+
 /// The authors' sampling variance of category `category`'s score given standard Student-t(λ) draws
 /// `t[k][d]` (one per draw and dimension): x_k = μ + t_var ⊙ t_k, score_k = (Wᵀx_k + m) · F_w/‖F_w‖.
 /// `None` for λ ≤ 2, fewer than 2 draws or an unknown category.
@@ -70,14 +85,10 @@ pub fn authors_score_variance<const D: usize, const K: usize>(
     category: usize,
     t: &[[f32; D]],
 ) -> Option<f32> {
-    let f = Spread::AuthorsTVar.factor(v.lambda)?;
-    let c = codebook.categories().get(category)?;
     if t.len() < 2 || t.len() > MAX_DRAWS {
         return None;
     }
-    // score_k = const + Σ_d a_d t_kd with a = t_var ⊙ W F_w / ‖F_w‖.
-    let inv = 1.0 / c.norm;
-    let a: [f32; D] = core::array::from_fn(|d| f * v.psi[d] * c.direction[d] * inv);
+    let a = authors_coefficients(v, codebook, category)?;
     let mut scores = [0.0f32; MAX_DRAWS];
     for (s, tk) in scores.iter_mut().zip(t) {
         *s = dot(&a, tk);
@@ -97,16 +108,11 @@ pub fn authors_score_variance_from_chi2<const D: usize, const K: usize>(
     chi2: &[[f32; D]],
     zeta: &[f32],
 ) -> Option<f32> {
-    let f = Spread::AuthorsTVar.factor(v.lambda)?;
-    let c = codebook.categories().get(category)?;
     if chi2.len() < 2 || chi2.len() != zeta.len() || chi2.len() > MAX_DRAWS {
         return None;
     }
-    let inv = 1.0 / c.norm;
-    let a2: [f32; D] = core::array::from_fn(|d| {
-        let a = f * v.psi[d] * c.direction[d] * inv;
-        v.lambda * a * a
-    });
+    let a = authors_coefficients(v, codebook, category)?;
+    let a2: [f32; D] = core::array::from_fn(|d| v.lambda * a[d] * a[d]);
     let mut scores = [0.0f32; MAX_DRAWS];
     for ((s, g), z) in scores.iter_mut().zip(chi2).zip(zeta) {
         let mut acc = [0.0f32; D];
