@@ -85,6 +85,7 @@ pub mod local_map;
 pub mod mapper;
 pub mod obs;
 pub mod quant;
+pub mod receiver;
 pub mod sampling;
 pub mod sink;
 pub mod stats;

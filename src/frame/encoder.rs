@@ -1,9 +1,17 @@
 //! The sending side: evicted voxels are quantized at once into a fixed byte queue (the encoder is the
 //! local map's [`EvictionSink`]; a full queue refuses and the map keeps the voxel), and each
-//! [`FrameEncoder::tick`] spends a byte budget on whole frames — session header when due, link statistics
-//! when due, queued voxels, then live ones — so a slow link sends fewer live updates, never loses an
-//! evicted voxel.
+//! [`FrameEncoder::tick`] spends a byte budget on whole frames — overdue re-sends, session header when due,
+//! link statistics when due, queued voxels, then live ones — so a slow link sends fewer live updates, never
+//! loses an evicted voxel.
+//!
+//! With a back channel ([`Resend`], protocol 3) part of the queue's bytes hold the frames sent but not yet
+//! acknowledged ([`super::resend`]): frames of final voxels and control frames are kept and re-sent until
+//! acknowledged; live updates travel in frames of their own that are not kept (a newer copy supersedes a
+//! lost one). When that buffer is full, no new frame is built: the queue stops draining and the map keeps
+//! its voxels.
 
+use super::ack::Ack;
+use super::resend::{Ring, ACK_WINDOW};
 use super::wire_len;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
@@ -28,6 +36,39 @@ pub struct EncoderSettings {
     pub header_interval: u32,
     /// Link statistics every this many frames.
     pub stats_interval: u32,
+    /// Re-sends over a back channel (protocol 3); [`Resend::OFF`] without one.
+    pub resend: Resend,
+}
+
+/// Keeping frames until the base station acknowledges them (a link with a back channel).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Resend {
+    /// Bytes of the queue budget (`QB`) that hold unacknowledged frames; 0 = no back channel (frames are
+    /// sent once and a lost one is counted lost by the receiver). At least one largest frame (`N`) + 11.
+    pub bytes: u32,
+    /// Ticks after which an unacknowledged frame is written again. A frame that a later frame's
+    /// acknowledgement shows missing is written again at the next tick.
+    pub timeout_ticks: u32,
+}
+
+impl Resend {
+    /// No back channel.
+    pub const OFF: Self = Self {
+        bytes: 0,
+        timeout_ticks: 0,
+    };
+    /// Keep unacknowledged frames in `bytes` of the queue budget; re-send after `timeout_ticks` ticks.
+    pub const fn new(bytes: u32, timeout_ticks: u32) -> Self {
+        Self {
+            bytes,
+            timeout_ticks,
+        }
+    }
+    /// Whether frames are kept for re-sending.
+    pub const fn is_on(&self) -> bool {
+        self.bytes > 0
+    }
 }
 
 impl EncoderSettings {
@@ -38,7 +79,13 @@ impl EncoderSettings {
             session,
             header_interval: 32,
             stats_interval: 64,
+            resend: Resend::OFF,
         }
+    }
+
+    /// The same with a back channel: keep unacknowledged frames and re-send them ([`Resend`]).
+    pub const fn with_resend(self, resend: Resend) -> Self {
+        Self { resend, ..self }
     }
 }
 
@@ -55,6 +102,12 @@ pub struct TickReport {
     /// Leading live voxels consumed from the caller's iterator (sent, or skipped as non-finite): the caller
     /// marks exactly these as sent.
     pub live_sent: u32,
+    /// Of `bytes`: bytes of frames that carried live voxels only.
+    pub live_bytes: usize,
+    /// Unacknowledged frames written again.
+    pub resent: u32,
+    /// Of `bytes`: bytes written again.
+    pub resent_bytes: usize,
 }
 
 /// Why a tick stopped early.
@@ -89,6 +142,12 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     scratch: [u8; N],
     body: [u8; N],
     stats: LinkStats,
+    /// Frames sent and not yet acknowledged, in `queue[resend_at..]`.
+    ring: Ring,
+    /// Where the re-send region starts in `queue` (= `QB` without a back channel).
+    resend_at: usize,
+    /// Ticks so far (the re-send clock).
+    now: u32,
 }
 
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32), all little-endian.
@@ -141,6 +200,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             session: 0,
             header_interval: 0,
             stats_interval: 0,
+            resend: Resend::OFF,
         },
         config: NO_SESSION,
         config_id: 0,
@@ -155,6 +215,9 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         scratch: [0; N],
         body: [0; N],
         stats: LinkStats::ZERO,
+        ring: Ring::EMPTY,
+        resend_at: QB,
+        now: 0,
     };
 
     /// An encoder for one session. Fails if the configuration is invalid for D, if the queue cannot hold
@@ -185,13 +248,21 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.entry_len = 0;
         self.capacity = 0;
         self.stats = LinkStats::ZERO;
+        self.ring = Ring::EMPTY;
+        self.resend_at = QB;
+        self.now = 0;
         config.validate(D)?;
+        let resend = settings.resend.bytes as usize;
+        if settings.resend.is_on() && (resend > QB || resend < N + 11) {
+            return Err(WireError::BufferFull);
+        }
         let entry_len = ENTRY_HEAD + config.codec.code_len(D);
-        let capacity = QB / entry_len;
+        let capacity = (QB - resend) / entry_len;
         let one = wire_len(VOXEL_FRAME_OVERHEAD + config.codec.max_summary_len(D));
         if capacity == 0 || one > N || wire_len(64) > N {
             return Err(WireError::BufferFull);
         }
+        self.resend_at = QB - resend;
         self.config = config;
         self.config_id = config.id();
         self.entry_len = entry_len;
@@ -207,6 +278,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.len = 0;
         self.entry_len = 0;
         self.capacity = 0;
+        self.ring = Ring::EMPTY;
     }
 
     /// Whether a session is configured.
@@ -232,6 +304,56 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// Sequence number of the next frame.
     pub fn next_seq(&self) -> u32 {
         self.seq
+    }
+    /// The session's settings.
+    pub fn settings(&self) -> &EncoderSettings {
+        &self.settings
+    }
+    /// Frames sent and not yet acknowledged (0 without a back channel).
+    pub fn unacknowledged(&self) -> usize {
+        self.ring.frames()
+    }
+    /// Wire bytes of the frames sent and not yet acknowledged.
+    pub fn unacknowledged_bytes(&self) -> usize {
+        self.ring.bytes()
+    }
+
+    /// Apply an acknowledgement of this session (others are ignored and counted): acknowledged frames are
+    /// freed, frames it shows missing are re-sent at the next tick. Returns frames newly acknowledged.
+    pub fn acknowledge(&mut self, ack: &Ack) -> u32 {
+        if ack.robot != self.settings.robot || ack.session != self.settings.session {
+            self.stats.bad_acks = self.stats.bad_acks.saturating_add(1);
+            return 0;
+        }
+        let region = self.queue.get_mut(self.resend_at..).unwrap_or_default();
+        let n = self.ring.ack(region, ack.highest, ack.received);
+        self.stats.acked = self.stats.acked.wrapping_add(n);
+        n
+    }
+
+    /// Count acknowledgements refused before they reached [`Self::acknowledge`] (bad bytes, other robots).
+    pub fn count_bad_acks(&mut self, n: u32) {
+        self.stats.bad_acks = self.stats.bad_acks.saturating_add(n);
+    }
+
+    /// Whether a new frame of `n` wire bytes may be sent now: without a back channel always; with one, if
+    /// the re-send buffer can keep it and the oldest unacknowledged frame stays within the receiver's
+    /// sequence window.
+    fn can_keep(&self, n: usize) -> bool {
+        let region = self.queue.get(self.resend_at..).unwrap_or_default();
+        self.in_window() && (!self.settings.resend.is_on() || self.ring.fits(region.len(), n))
+    }
+
+    /// Whether any new frame may be numbered now: with a back channel, the oldest unacknowledged frame
+    /// must stay within the receiver's 64-frame sequence window of the newest, or its re-sent copy would
+    /// arrive too old to be applied.
+    fn in_window(&self) -> bool {
+        let region = self.queue.get(self.resend_at..).unwrap_or_default();
+        !self.settings.resend.is_on()
+            || self
+                .ring
+                .oldest_seq(region)
+                .is_none_or(|oldest| self.seq.wrapping_sub(oldest) < ACK_WINDOW - 1)
     }
 
     /// Queue slot `i` places after the oldest entry (`i ≤ capacity`), wrapped around the ring.
@@ -296,16 +418,28 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         Ok(n + 2)
     }
 
-    /// Write the frame in `scratch[..n]` (`n ≤ N`), counting it. The sequence number advances even when
-    /// the write fails (a partly written frame must never share its number with the next one).
-    fn send<W: embedded_io::Write>(&mut self, w: &mut W, n: usize) -> Result<(), W::Error> {
+    /// Write the frame in `scratch[..n]` (`n ≤ N`), counting it; a `kept` frame stays in the re-send
+    /// buffer until acknowledged (callers checked [`Self::can_keep`]). The sequence number advances even
+    /// when the write fails (a partly written frame must never share its number with the next one).
+    fn send<W: embedded_io::Write>(
+        &mut self,
+        w: &mut W,
+        n: usize,
+        kept: bool,
+    ) -> Result<(), W::Error> {
+        let seq = self.seq;
         self.seq = self.seq.wrapping_add(1);
         self.since_header = self.since_header.saturating_add(1);
         self.since_stats = self.since_stats.saturating_add(1);
-        match w.write_all(&self.scratch[..n.min(N)]) {
+        let frame = self.scratch.get(..n).unwrap_or_default();
+        match w.write_all(frame) {
             Ok(()) => {
                 self.stats.frames_sent = self.stats.frames_sent.wrapping_add(1);
                 self.stats.bytes_sent = self.stats.bytes_sent.wrapping_add(n as u32);
+                if kept && self.settings.resend.is_on() {
+                    let region = self.queue.get_mut(self.resend_at..).unwrap_or_default();
+                    self.ring.push(region, seq, self.now, frame);
+                }
                 Ok(())
             }
             Err(e) => {
@@ -325,10 +459,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         let Ok(n) = self.build_message(message) else {
             return Ok(false);
         };
-        if report.bytes + n > budget {
+        if report.bytes + n > budget || !self.can_keep(n) {
             return Ok(false);
         }
-        self.send(w, n).map_err(|e| TickError::Write(e, *report))?;
+        self.send(w, n, true).map_err(|e| TickError::Write(e, *report))?;
         report.frames += 1;
         report.bytes += n;
         Ok(true)
@@ -343,7 +477,8 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         let n = self
             .build_message(Message::Session(self.config))
             .unwrap_or(0);
-        self.send(w, n)?;
+        let kept = self.can_keep(n);
+        self.send(w, n, kept)?;
         self.since_header = 0;
         Ok(n)
     }
@@ -354,14 +489,49 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             return Ok(0);
         }
         let n = self.build_message(Message::Stats(self.stats)).unwrap_or(0);
-        self.send(w, n)?;
+        let kept = self.can_keep(n);
+        self.send(w, n, kept)?;
         self.since_stats = 0;
         Ok(n)
     }
 
-    /// Spend up to `budget` bytes: the session header if due, link statistics if due, then queued evicted
-    /// voxels (oldest first), then `live` voxels in the caller's order (most changed first). Only whole
-    /// frames are written; without a session nothing is.
+    /// Write again, oldest first, the unacknowledged frames that are due (timed out, or shown missing by a
+    /// later frame's acknowledgement), within `budget`.
+    fn resend_due<W: embedded_io::Write>(
+        &mut self,
+        w: &mut W,
+        budget: usize,
+        report: &mut TickReport,
+    ) -> Result<(), TickError<W::Error>> {
+        let timeout = self.settings.resend.timeout_ticks.max(1);
+        loop {
+            let region = self.queue.get(self.resend_at..).unwrap_or_default();
+            let Some((at, record)) = self.ring.due(region, self.now, timeout) else {
+                return Ok(());
+            };
+            let frame = self.ring.frame(region, at, &record);
+            if report.bytes + frame.len() > budget {
+                return Ok(());
+            }
+            let n = frame.len();
+            w.write_all(frame)
+                .map_err(|e| TickError::Write(e, *report))?;
+            let region = self.queue.get_mut(self.resend_at..).unwrap_or_default();
+            self.ring.resent(region, at, self.now);
+            report.frames += 1;
+            report.bytes += n;
+            report.resent += 1;
+            report.resent_bytes += n;
+            self.stats.bytes_sent = self.stats.bytes_sent.wrapping_add(n as u32);
+            self.stats.resent = self.stats.resent.wrapping_add(1);
+        }
+    }
+
+    /// Spend up to `budget` bytes: overdue re-sends (with a back channel), the session header if due, link
+    /// statistics if due, then queued evicted voxels (oldest first), then `live` voxels in the caller's
+    /// order (most changed first). Only whole frames are written; without a session nothing is. With a
+    /// back channel, live voxels travel in frames of their own (not kept), and no new kept frame is built
+    /// while the re-send buffer is full.
     pub fn tick<'a, W, I>(
         &mut self,
         w: &mut W,
@@ -375,6 +545,11 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         let mut report = TickReport::default();
         if !self.is_configured() {
             return Ok(report);
+        }
+        self.now = self.now.wrapping_add(1);
+        let reliable = self.settings.resend.is_on();
+        if reliable {
+            self.resend_due(w, budget, &mut report)?;
         }
         if self.seq == 0 || self.since_header >= self.settings.header_interval {
             if self.control_frame(w, Message::Session(self.config), budget, &mut report)? {
@@ -425,7 +600,8 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                 count += 1;
                 from_queue += 1;
             }
-            if from_queue == self.len {
+            // With a back channel a frame is either kept (final voxels) or live-only (not kept).
+            if from_queue == self.len && (!reliable || count == 0) {
                 while let Some(v) = live.peek() {
                     if count == u16::MAX {
                         break;
@@ -456,7 +632,15 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             let Ok(n) = self.build_voxels(count, used) else {
                 break;
             };
-            self.send(w, n).map_err(|e| TickError::Write(e, report))?;
+            let kept = from_queue > 0;
+            if (kept && !self.can_keep(n)) || !self.in_window() {
+                break; // back-pressure: the re-send buffer is full
+            }
+            self.send(w, n, kept)
+                .map_err(|e| TickError::Write(e, report))?;
+            if !kept {
+                report.live_bytes += n;
+            }
             // Sent: drop the queue entries, count everything.
             self.head = self.slot(from_queue);
             self.len -= from_queue;

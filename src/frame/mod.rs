@@ -17,12 +17,16 @@
 //! Submodules: [`encoder`] (the sending side and its queue), [`decoder`] (bytes → checked frame bodies),
 //! [`seq`] (sequence numbers of a session).
 
+pub mod ack;
 pub mod decoder;
 pub mod encoder;
+mod resend;
 pub mod seq;
 
+pub use ack::{Ack, AckReader, AckStats};
 pub use decoder::{DecoderStats, Feed, FrameDecoder, FrameError};
-pub use encoder::{live, EncoderSettings, FrameEncoder, TickError, TickReport};
+pub use encoder::{live, EncoderSettings, FrameEncoder, Resend, TickError, TickReport};
+pub use resend::ACK_WINDOW;
 pub use seq::{SeqTracker, SeqVerdict};
 
 /// Bytes a frame body of `body_len` bytes takes on the wire, at most: two delimiters, COBS overhead, CRC.

@@ -77,4 +77,10 @@ impl SeqTracker {
     pub fn highest(&self) -> Option<u32> {
         self.started.then_some(self.highest)
     }
+
+    /// The 64 sequence numbers ending at [`Self::highest`]: bit i set means `highest − i` was received
+    /// (what an acknowledgement carries, [`crate::frame::Ack`]).
+    pub fn window(&self) -> u64 {
+        self.window
+    }
 }

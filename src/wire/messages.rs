@@ -141,6 +141,12 @@ pub struct LinkStats {
     pub bytes_sent: u32,
     /// Most summaries ever waiting in the queue.
     pub queue_peak: u32,
+    /// Frames written again because their acknowledgement was overdue or showed them missing (protocol 3).
+    pub resent: u32,
+    /// Frames acknowledged by the base station.
+    pub acked: u32,
+    /// Acknowledgements refused: damaged bytes, malformed, or of another robot or session.
+    pub bad_acks: u32,
 }
 
 impl LinkStats {
@@ -154,6 +160,9 @@ impl LinkStats {
         write_errors: 0,
         bytes_sent: 0,
         queue_peak: 0,
+        resent: 0,
+        acked: 0,
+        bad_acks: 0,
     };
 }
 
