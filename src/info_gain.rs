@@ -113,7 +113,7 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
     if !lut.is_voxel_offset() {
         return Err(ScoreError::SubVoxelKernel);
     }
-    if hits.windows(2).any(|p| !(p[0].0 < p[1].0)) {
+    if hits.windows(2).any(|p| p[0].0 >= p[1].0) {
         return Err(ScoreError::UnsortedHits);
     }
     let offsets = lut.offsets();
