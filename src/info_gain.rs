@@ -5,7 +5,7 @@
 //! ([`crate::inference`]). Its entropy is ½ ln s² plus a term of the degrees of freedom alone; the gain is
 //! the expected drop of the ½ ln s² part (the log of the D-optimality of the authors' t_var, per dimension)
 //! when the voxel receives kernel weight `w` more of observations. New observations are expected to have
-//! the spread the voxel already predicts: kernel weight `w` of points adds E[ΔΨ] = w · Ψ/λ to the scatter
+//! the spread the voxel already predicts: kernel weight `w` of points adds E\[ΔΨ\] = w · Ψ/λ to the scatter
 //! (the batch's own scatter plus its mean's offset from μ, §III-B's update, in expectation). Then
 //!
 //! ```text
