@@ -11,15 +11,25 @@
 //! is lost silently: refused points are counted by the map ([`LocalMap::rejections`]), voxels the link
 //! cannot take yet stay in the map (back-pressure), and [`Mapper::drain`] sends every voxel before it
 //! returns.
+//!
+//! With a back channel ([`crate::frame::Resend`]) the robot keeps what it sent until the base station
+//! acknowledges it; [`Mapper::poll_acks`] reads acknowledgements without blocking. With live updates on
+//! ([`LiveUpdates`]) each tick also streams the held voxels that changed since they were last streamed, so
+//! the base station's map follows the robot while it works. A program that needs every eviction's exact
+//! statistics (an evaluation, a log) taps them ([`EvictionTap`]) instead of assembling a second robot.
 
 use crate::batch::Rejection;
 use crate::config::{ConfigError, MapConfig};
-use crate::frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
+use crate::frame::{AckReader, EncoderSettings, FrameEncoder, TickError, TickReport};
 use crate::key::to_map_frame;
 use crate::local_map::LocalMap;
 use crate::sink::Evicted;
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 use nalgebra::Isometry3;
+
+mod tap;
+pub use tap::{EvictionTap, LiveUpdates, NoTap};
+use tap::Tapped;
 
 /// Everything a [`Mapper`] is configured with; `const`-constructible, so a firmware keeps it in a `static`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -35,6 +45,8 @@ pub struct Setup {
     /// Id of the PCA the features were compressed with ([`crate::wire::feature_space_id`]), or
     /// [`NO_FEATURE_SPACE`].
     pub feature_space: u32,
+    /// Streaming held voxels as they change (off: only final voxels, at eviction).
+    pub live: LiveUpdates,
 }
 
 impl Setup {
@@ -46,7 +58,13 @@ impl Setup {
             link,
             codec: SummaryCodec::DEFAULT,
             feature_space: NO_FEATURE_SPACE,
+            live: LiveUpdates::OFF,
         }
+    }
+
+    /// The same with live updates.
+    pub const fn with_live(self, live: LiveUpdates) -> Self {
+        Self { live, ..self }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.
@@ -71,7 +89,9 @@ pub enum SetupError {
 pub enum DrainError<E> {
     /// The writer failed; what was not sent stays in the map or the encoder's queue.
     Write(E),
-    /// A queued voxel could not be sent (the frame size `N` is too small for one summary, or no session).
+    /// A queued voxel could not be sent (the frame size `N` is too small for one summary, or no session),
+    /// or, with a back channel, the re-send buffer is full of unacknowledged frames: read acknowledgements
+    /// ([`Mapper::poll_acks`]) and drain again.
     Stuck,
 }
 
@@ -91,6 +111,11 @@ pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: us
 {
     map: LocalMap<D, CAP, P>,
     encoder: FrameEncoder<D, QB, N>,
+    acks: AckReader,
+    live: LiveUpdates,
+    /// Where the next live round starts (a slot of the map).
+    live_hand: usize,
+    ticks: u32,
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
@@ -102,12 +127,20 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     pub const EMPTY: Self = Self {
         map: LocalMap::EMPTY,
         encoder: FrameEncoder::EMPTY,
+        acks: AckReader::new(),
+        live: LiveUpdates::OFF,
+        live_hand: 0,
+        ticks: 0,
     };
 
     /// (Re)configure in place: clears the map and starts a new session on the link (the next tick begins
     /// with its header). On error nothing is sent until a later `configure` succeeds.
     pub fn configure(&mut self, setup: &Setup) -> Result<(), SetupError> {
         self.encoder.close();
+        self.acks.reset();
+        self.live = setup.live;
+        self.live_hand = 0;
+        self.ticks = 0;
         self.map
             .configure(setup.map, setup.window_radius)
             .map_err(SetupError::Map)?;
@@ -119,11 +152,25 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
     /// behind are queued for the link). Add the frame's points through the returned [`SensorFrame`].
     pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N> {
+        self.begin_frame_tapped(pose, NoTap)
+    }
+
+    /// [`Self::begin_frame`] with a tap that sees every voxel the frame hands to the link.
+    pub fn begin_frame_tapped<T: EvictionTap<D>>(
+        &mut self,
+        pose: &Isometry3<f32>,
+        mut tap: T,
+    ) -> SensorFrame<'_, D, CAP, P, QB, N, T> {
         let t = pose.translation.vector;
-        self.map.move_window([t.x, t.y, t.z], &mut self.encoder);
+        let mut sink = Tapped {
+            sink: &mut self.encoder,
+            tap: &mut tap,
+        };
+        self.map.move_window([t.x, t.y, t.z], &mut sink);
         SensorFrame {
             mapper: self,
             pose: *pose,
+            tap,
         }
     }
 
@@ -137,30 +184,120 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         self.begin_frame(pose).add_points(points, features)
     }
 
-    /// Spend up to `budget` bytes on the link: the session header when due, then the evicted voxels
-    /// (oldest first). Only whole frames are written.
+    /// [`Self::integrate`] with a tap that sees every voxel the frame hands to the link.
+    pub fn integrate_tapped<T: EvictionTap<D>>(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        features: &[[f32; D]],
+        tap: T,
+    ) -> usize {
+        self.begin_frame_tapped(pose, tap)
+            .add_points(points, features)
+    }
+
+    /// Spend up to `budget` bytes on the link: overdue re-sends (with a back channel), the session header
+    /// when due, the evicted voxels (oldest first), then — with live updates on — the held voxels that
+    /// changed since they were last streamed. Only whole frames are written.
     pub fn tick<W: embedded_io::Write>(
         &mut self,
         w: &mut W,
         budget: usize,
     ) -> Result<TickReport, TickError<W::Error>> {
+        self.ticks = self.ticks.wrapping_add(1);
+        let live_on = self.live.bytes_per_tick > 0
+            && self.ticks % self.live.every_ticks.max(1) == 0
+            && !self.map.is_empty();
+        if !live_on {
+            return self
+                .encoder
+                .tick(w, budget, core::iter::empty::<Evicted<'_, D>>());
+        }
+        let hand = self.live_hand;
+        let live_budget = self.live.bytes_per_tick as usize;
+        let report = self
+            .encoder
+            .tick_live(w, budget, live_budget, self.map.changed_voxels(hand));
+        // The leading `live_sent` changed voxels from the hand were consumed: mark them streamed.
+        let consumed = match &report {
+            Ok(r) => r.live_sent,
+            Err(TickError::Write(_, r)) => r.live_sent,
+        };
+        let mut at = hand;
+        for _ in 0..consumed {
+            let Some(s) = self.map.next_changed(at) else {
+                break;
+            };
+            self.map.mark_streamed(s);
+            at = if s + 1 >= CAP { 0 } else { s + 1 };
+        }
+        self.live_hand = at;
+        report
+    }
+
+    /// Read the acknowledgements the back channel has ready (never blocking): acknowledged frames are
+    /// freed, frames shown missing are re-sent at the next tick. Bad bytes are refused and counted
+    /// ([`crate::wire::LinkStats::bad_acks`], [`Self::ack_stats`]). Returns the bytes read.
+    pub fn poll_acks<R: embedded_io::Read + embedded_io::ReadReady>(
+        &mut self,
+        r: &mut R,
+    ) -> Result<usize, R::Error> {
+        let settings = *self.encoder.settings();
+        let before = self.acks.stats().refused();
+        let encoder = &mut self.encoder;
+        let n = self
+            .acks
+            .poll(r, settings.robot, settings.session, |ack| {
+                encoder.acknowledge(&ack);
+            })?;
         self.encoder
-            .tick(w, budget, core::iter::empty::<Evicted<'_, D>>())
+            .count_bad_acks(self.acks.stats().refused().saturating_sub(before));
+        Ok(n)
+    }
+
+    /// What the acknowledgement reader saw.
+    pub fn ack_stats(&self) -> crate::frame::AckStats {
+        self.acks.stats()
+    }
+
+    /// Whether everything reached the base station: nothing held, nothing queued, nothing unacknowledged
+    /// (without a back channel: nothing held or queued).
+    pub fn is_drained(&self) -> bool {
+        self.map.is_empty() && self.encoder.queued() == 0 && self.encoder.unacknowledged() == 0
     }
 
     /// End of the run: evict every voxel and send everything, then a link-statistics frame. Returns the
-    /// number of voxels evicted from the map.
+    /// number of voxels evicted from the map. With a back channel, frames may still await their
+    /// acknowledgement after it returns (read them with [`Self::poll_acks`], tick until
+    /// [`Self::is_drained`]); when the re-send buffer is full it returns [`DrainError::Stuck`]: read
+    /// acknowledgements and drain again.
     pub fn drain<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<u32, DrainError<W::Error>> {
+        self.drain_tapped(w, NoTap)
+    }
+
+    /// [`Self::drain`] with a tap that sees every voxel handed to the link.
+    pub fn drain_tapped<W: embedded_io::Write, T: EvictionTap<D>>(
+        &mut self,
+        w: &mut W,
+        mut tap: T,
+    ) -> Result<u32, DrainError<W::Error>> {
         let mut evicted = 0u32;
         // The queue refuses when full: alternate flushing the map and sending until both are empty.
         loop {
-            let flushed = self.map.flush(&mut self.encoder);
+            let mut sink = Tapped {
+                sink: &mut self.encoder,
+                tap: &mut tap,
+            };
+            let flushed = self.map.flush(&mut sink);
             let (Ok(n) | Err(n)) = flushed;
             evicted = evicted.saturating_add(n as u32);
             if flushed.is_ok() && self.encoder.queued() == 0 {
                 break;
             }
-            if self.tick(w, usize::MAX)?.evicted_sent == 0 {
+            let sent = self
+                .encoder
+                .tick(w, usize::MAX, core::iter::empty::<Evicted<'_, D>>())?;
+            if sent.evicted_sent == 0 && n == 0 {
                 return Err(DrainError::Stuck);
             }
         }
@@ -187,7 +324,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     }
 }
 
-/// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose.
+/// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose (and every
+/// voxel it hands to the link through the tap `T`, if any).
 pub struct SensorFrame<
     'm,
     const D: usize,
@@ -195,28 +333,43 @@ pub struct SensorFrame<
     const P: usize,
     const QB: usize,
     const N: usize,
+    T = NoTap,
 > {
     mapper: &'m mut Mapper<D, CAP, P, QB, N>,
     pose: Isometry3<f32>,
+    tap: T,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    SensorFrame<'_, D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        T: EvictionTap<D>,
+    > SensorFrame<'_, D, CAP, P, QB, N, T>
 {
     /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
     /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in
     /// [`LocalMap::rejections`].
     pub fn add_points(&mut self, points: &[[f32; 3]], features: &[[f32; D]]) -> usize {
         let m = &mut self.mapper;
-        m.map
-            .add_points(&self.pose, points, features, &mut m.encoder)
+        let mut sink = Tapped {
+            sink: &mut m.encoder,
+            tap: &mut self.tap,
+        };
+        m.map.add_points(&self.pose, points, features, &mut sink)
     }
 
     /// Add one sensor-frame point (for sensors that deliver a point at a time).
     pub fn add_point(&mut self, point: [f32; 3], feature: &[f32; D]) -> Result<(), Rejection> {
         let m = &mut self.mapper;
+        let mut sink = Tapped {
+            sink: &mut m.encoder,
+            tap: &mut self.tap,
+        };
         m.map
-            .add_point(to_map_frame(&self.pose, point), feature, &mut m.encoder)
+            .add_point(to_map_frame(&self.pose, point), feature, &mut sink)
     }
 
     /// The map, read-only (e.g. for a report between chunks).
@@ -224,6 +377,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         &self.mapper.map
     }
 }
+
+#[cfg(test)]
+mod link_tests;
 
 #[cfg(test)]
 mod tests {

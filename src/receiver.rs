@@ -162,6 +162,8 @@ pub struct Accepted<'a> {
     pub message: Message<'a>,
     /// The body as received (header + message), e.g. for a journal.
     pub body: &'a [u8],
+    /// The configuration it was accepted under (its codec decodes the summaries).
+    pub config: SessionConfig,
     /// New, or late (an older frame not received before).
     pub verdict: SeqVerdict,
     /// What to send back to the robot.
@@ -347,6 +349,7 @@ impl<const D: usize, const N: usize> Receiver<D, N> {
                 header,
                 message,
                 body,
+                config,
                 verdict,
                 ack,
             },

@@ -14,6 +14,7 @@ use super::ack::Ack;
 use super::resend::{Ring, ACK_WINDOW};
 use super::wire_len;
 use crate::key::VoxelKey;
+use crate::local_map::LiveVoxel;
 use crate::obs::ObsStats;
 use crate::sink::{Evicted, EvictionSink, SinkFull};
 use crate::wire::{
@@ -542,6 +543,23 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         W: embedded_io::Write,
         I: IntoIterator<Item = Evicted<'a, D>>,
     {
+        self.tick_live(w, budget, usize::MAX, live)
+    }
+
+    /// [`Self::tick`] with at most `live_budget` of the `budget` bytes spent on frames of live voxels
+    /// (with a back channel; without one, live voxels also fill the room queued voxels leave in a frame).
+    pub fn tick_live<W, I>(
+        &mut self,
+        w: &mut W,
+        budget: usize,
+        live_budget: usize,
+        live: I,
+    ) -> Result<TickReport, TickError<W::Error>>
+    where
+        W: embedded_io::Write,
+        I: IntoIterator,
+        I::Item: LiveItem<D>,
+    {
         let mut report = TickReport::default();
         if !self.is_configured() {
             return Ok(report);
@@ -564,9 +582,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             self.since_stats = 0;
         }
         let mut live = live.into_iter().peekable();
+        let smallest = wire_len(VOXEL_FRAME_OVERHEAD + self.config.codec.max_summary_len(D));
         loop {
-            let limit = N.min(budget.saturating_sub(report.bytes));
-            if limit < wire_len(VOXEL_FRAME_OVERHEAD + self.config.codec.max_summary_len(D)) {
+            let mut limit = N.min(budget.saturating_sub(report.bytes));
+            if limit < smallest {
                 break;
             }
             // Fill one frame: queued evicted voxels first, then live ones.
@@ -602,10 +621,17 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             }
             // With a back channel a frame is either kept (final voxels) or live-only (not kept).
             if from_queue == self.len && (!reliable || count == 0) {
-                while let Some(v) = live.peek() {
+                if count == 0 {
+                    limit = limit.min(live_budget.saturating_sub(report.live_bytes));
+                    if limit < smallest {
+                        break;
+                    }
+                }
+                while let Some(item) = live.peek() {
                     if count == u16::MAX {
                         break;
                     }
+                    let v = item.voxel();
                     // Consumed either way: sent, or skipped because the decoder would refuse it.
                     if let Some(n) = sendable(v.obs) {
                         let summary = (v.key, v.residency, n, Codes::Live(v.obs));
@@ -746,6 +772,25 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
         self.len += 1;
         self.stats.queue_peak = self.stats.queue_peak.max(self.len as u32);
         Ok(())
+    }
+}
+
+/// A voxel the encoder can stream live: a borrowed [`Evicted`] view, or a decoded [`LiveVoxel`] from the
+/// local map.
+pub trait LiveItem<const D: usize> {
+    /// The voxel, borrowed.
+    fn voxel(&self) -> Evicted<'_, D>;
+}
+
+impl<const D: usize> LiveItem<D> for Evicted<'_, D> {
+    fn voxel(&self) -> Evicted<'_, D> {
+        *self
+    }
+}
+
+impl<const D: usize> LiveItem<D> for LiveVoxel<D> {
+    fn voxel(&self) -> Evicted<'_, D> {
+        live(self.key, &self.obs, self.residency)
     }
 }
 

@@ -25,7 +25,7 @@ pub mod seq;
 
 pub use ack::{Ack, AckReader, AckStats};
 pub use decoder::{DecoderStats, Feed, FrameDecoder, FrameError};
-pub use encoder::{live, EncoderSettings, FrameEncoder, Resend, TickError, TickReport};
+pub use encoder::{live, EncoderSettings, FrameEncoder, LiveItem, Resend, TickError, TickReport};
 pub use resend::ACK_WINDOW;
 pub use seq::{SeqTracker, SeqVerdict};
 

@@ -2,7 +2,7 @@
 //! no decoding). A voxel is quantized only when it cools — when another voxel needs its entry — so it is
 //! re-encoded once per visit, not once per point or batch.
 
-use super::{Hot, LocalMap, REFERENCED};
+use super::{Hot, LocalMap, CHANGED, REFERENCED};
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use crate::quant::QuantVoxel;
@@ -25,6 +25,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         }
         slot.hot = 0;
         slot.flags |= REFERENCED;
+        if hot.obs.count != hot.live_sent {
+            slot.flags |= CHANGED; // points the link has not streamed live yet
+        }
         self.counters.cooled = self.counters.cooled.saturating_add(1);
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
     }
@@ -79,6 +82,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
                 key,
                 slot: s as u16,
                 referenced: true,
+                live_sent: 0.0,
             };
         }
         if let Some(slot) = self.slots.get_mut(s) {

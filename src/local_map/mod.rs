@@ -24,7 +24,8 @@
 //!   refuses, the voxel stays and the refusal is counted. Nothing is forgotten silently.
 //!
 //! The parts live in private submodules: `index` (key → slot), `slots` (the ring, CLOCK eviction, flush),
-//! `hot` (the f32 tier and cooling), `window` (wrapped keys, moving the window); this file holds the
+//! `hot` (the f32 tier and cooling), `window` (wrapped keys, moving the window), `live` (which held voxels
+//! changed since the link last streamed them); this file holds the
 //! layout, configuration, adding points and reading.
 
 use crate::batch::{locate, Rejection, RejectionCounts};
@@ -45,6 +46,8 @@ pub const MAX_WINDOW_VOXELS: i32 = 16_000;
 
 const OCCUPIED: u8 = 1;
 const REFERENCED: u8 = 2;
+/// Cooled with points the link has not seen as a live update (see `live`).
+const CHANGED: u8 = 4;
 
 #[derive(Clone, Copy, Debug)]
 struct Slot<const D: usize, const P: usize> {
@@ -77,6 +80,9 @@ struct Hot<const D: usize> {
     key: VoxelKey,
     slot: u16,
     referenced: bool,
+    /// Its point count when it was last streamed as a live update (0: not yet): a hot voxel has changed
+    /// since if its count differs — read per tick, never written per point.
+    live_sent: f32,
 }
 
 impl<const D: usize> Hot<D> {
@@ -85,6 +91,7 @@ impl<const D: usize> Hot<D> {
         key: VoxelKey::new(0, 0, 0),
         slot: 0,
         referenced: false,
+        live_sent: 0.0,
     };
 }
 
@@ -145,6 +152,7 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
 mod hot;
 mod index;
 mod slots;
+mod live;
 mod window;
 
 use window::unwrap;

@@ -1,0 +1,64 @@
+//! Which held voxels changed since the link last streamed them, so that a base station's map can follow
+//! the robot while it works (live updates; the final copy at eviction supersedes them).
+//!
+//! Nothing here runs per point: a hot voxel has changed if its point count differs from the count it had
+//! when it was last streamed; a cold one carries a flag set when it cooled with points not yet streamed.
+//! The link walks the slots like a ring from where it stopped, so every changed voxel gets its turn.
+
+use super::window::unwrap;
+use super::{LiveVoxel, LocalMap, CHANGED, OCCUPIED};
+
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+    /// Whether slot `s` holds a voxel with points the link has not streamed.
+    fn changed(&self, s: usize) -> bool {
+        let Some(slot) = self.slots.get(s) else {
+            return false;
+        };
+        if slot.flags & OCCUPIED == 0 {
+            return false;
+        }
+        if slot.flags & CHANGED != 0 {
+            return true;
+        }
+        usize::from(slot.hot)
+            .checked_sub(1)
+            .and_then(|h| self.hot.get(h))
+            .is_some_and(|h| h.obs.count != h.live_sent)
+    }
+
+    /// The next slot at or after `from` (wrapping once around the pool) holding a changed voxel.
+    pub fn next_changed(&self, from: usize) -> Option<usize> {
+        (0..CAP)
+            .map(|i| (from + i) % CAP)
+            .find(|&s| self.changed(s))
+    }
+
+    /// The changed voxels, decoded, in ring order from slot `from` (each once).
+    pub fn changed_voxels(&self, from: usize) -> impl Iterator<Item = LiveVoxel<D>> + '_ {
+        (0..CAP)
+            .map(move |i| (from + i) % CAP)
+            .filter(|&s| self.changed(s))
+            .filter_map(|s| {
+                let slot = self.slots.get(s)?;
+                Some(LiveVoxel {
+                    key: unwrap(slot.key, self.centre),
+                    obs: self.decode_slot(slot),
+                    residency: slot.residency,
+                })
+            })
+    }
+
+    /// The link streamed slot `s` as it is now.
+    pub fn mark_streamed(&mut self, s: usize) {
+        let Some(slot) = self.slots.get_mut(s) else {
+            return;
+        };
+        slot.flags &= !CHANGED;
+        if let Some(h) = usize::from(slot.hot)
+            .checked_sub(1)
+            .and_then(|h| self.hot.get_mut(h))
+        {
+            h.live_sent = h.obs.count;
+        }
+    }
+}

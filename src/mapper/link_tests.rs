@@ -1,0 +1,209 @@
+//! The robot's side of the link as a firmware runs it: taps, live updates, acknowledgements.
+
+use super::*;
+use crate::frame::Resend;
+use crate::quant::packed_len;
+use crate::receiver::{Receipt, Receiver, Sessions};
+use crate::wire::Message;
+use nalgebra::{Translation3, UnitQuaternion};
+
+extern crate std;
+use std::boxed::Box;
+use std::vec::Vec;
+
+const D: usize = 8;
+type Robot = Mapper<D, 256, { packed_len(D) }, 4096, 256>;
+
+/// The back channel: bytes written by the base station, read by the robot a few at a time.
+#[derive(Default)]
+struct BackChannel {
+    bytes: Vec<u8>,
+    at: usize,
+}
+impl embedded_io::ErrorType for BackChannel {
+    type Error = core::convert::Infallible;
+}
+impl embedded_io::Read for BackChannel {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        let n = buf.len().min(self.bytes.len() - self.at).min(7);
+        buf[..n].copy_from_slice(&self.bytes[self.at..self.at + n]);
+        self.at += n;
+        Ok(n)
+    }
+}
+impl embedded_io::ReadReady for BackChannel {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        Ok(self.at < self.bytes.len())
+    }
+}
+
+fn setup(resend: Resend, live: LiveUpdates) -> Setup {
+    Setup::new(
+        MapConfig::DEFAULT,
+        1.0,
+        EncoderSettings::new(2, 3).with_resend(resend),
+    )
+    .with_live(live)
+}
+
+/// 100 points on a strip beside `x`.
+fn sensor_frame(x: f32) -> (Isometry3<f32>, Vec<[f32; 3]>, Vec<[f32; D]>) {
+    let pose = Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity());
+    let points = (0..100)
+        .map(|i| [0.01 * i as f32 - 0.5, 0.3, 0.02])
+        .collect();
+    let features = (0..100).map(|i| [i as f32 * 0.01; D]).collect();
+    (pose, points, features)
+}
+
+/// A base station in miniature: the core receiver, points of final and live summaries applied, and
+/// acknowledgements written to the back channel.
+struct Station {
+    rx: Receiver<D, 512>,
+    sessions: Sessions<2>,
+    final_points: f32,
+    live_summaries: u32,
+}
+
+impl Station {
+    fn new() -> Self {
+        Self {
+            rx: Receiver::new(None),
+            sessions: Sessions::new(),
+            final_points: 0.0,
+            live_summaries: 0,
+        }
+    }
+    fn receive(&mut self, mut input: &[u8], back: &mut BackChannel) {
+        loop {
+            let (ack, rest) = match self.rx.feed(input, &mut self.sessions) {
+                Receipt::NeedMore => return,
+                Receipt::Refused { ack, rest, .. } => (ack, rest),
+                Receipt::Accepted { frame, rest } => {
+                    if let Message::Voxels(batch) = frame.message {
+                        let codec = frame.config.codec;
+                        for s in batch.iter::<D>(codec) {
+                            let s = s.unwrap();
+                            if s.is_final {
+                                self.final_points += s.obs.count;
+                            } else {
+                                self.live_summaries += 1;
+                            }
+                        }
+                    }
+                    (frame.ack, rest)
+                }
+            };
+            if let Some(a) = ack {
+                let mut wire = [0u8; 64];
+                let n = a.encode(&mut wire).unwrap();
+                back.bytes.extend_from_slice(&wire[..n]);
+            }
+            input = rest;
+        }
+    }
+}
+
+#[test]
+fn the_tap_sees_every_voxel_handed_to_the_link() {
+    let mut robot = Box::new(Robot::EMPTY);
+    robot
+        .configure(&setup(Resend::OFF, LiveUpdates::OFF))
+        .unwrap();
+    let (mut tapped, mut voxels) = (0.0f32, 0u32);
+    let mut tap = |v: &Evicted<'_, D>| {
+        tapped += v.obs.count;
+        voxels += 1;
+    };
+    let mut out = Vec::new();
+    for f in 0..8 {
+        let (pose, points, features) = sensor_frame(f as f32 * 0.5);
+        robot.integrate_tapped(&pose, &points, &features, &mut tap);
+        robot.tick(&mut out, 2000).unwrap();
+    }
+    robot.drain_tapped(&mut out, &mut tap).unwrap();
+    assert_eq!(tapped, 800.0);
+    assert_eq!(voxels, robot.map().counters().evicted);
+    assert!(robot.is_drained());
+}
+
+#[test]
+fn live_updates_show_held_voxels_and_finals_carry_every_point() {
+    let mut robot = Box::new(Robot::EMPTY);
+    robot
+        .configure(&setup(Resend::OFF, LiveUpdates::new(400)))
+        .unwrap();
+    let mut station = Station::new();
+    let mut back = BackChannel::default();
+    // The robot stays put: nothing is evicted, so only live updates can show the map.
+    for _ in 0..4 {
+        let (pose, points, features) = sensor_frame(0.0);
+        robot.integrate(&pose, &points, &features);
+        let mut out = Vec::new();
+        let r = robot.tick(&mut out, 2000).unwrap();
+        assert!(r.live_bytes <= 400, "{r:?}");
+        station.receive(&out, &mut back);
+    }
+    assert_eq!(robot.encoder().stats().evicted_sent, 0);
+    let held = robot.map().len() as u32;
+    assert!(
+        station.live_summaries >= held,
+        "{} live summaries for {held} held voxels",
+        station.live_summaries
+    );
+    // Nothing changed since: a quiet tick streams nothing.
+    let mut out = Vec::new();
+    while robot.map().changed_voxels(0).next().is_some() {
+        robot.tick(&mut out, 2000).unwrap();
+    }
+    let mut quiet = Vec::new();
+    assert_eq!(robot.tick(&mut quiet, 2000).unwrap().live_sent, 0);
+    let mut out = Vec::new();
+    robot.drain(&mut out).unwrap();
+    station.receive(&out, &mut back);
+    assert_eq!(station.final_points, 400.0);
+}
+
+#[test]
+fn with_acknowledgements_nothing_is_lost_on_a_lossy_link() {
+    let mut robot = Box::new(Robot::EMPTY);
+    robot
+        .configure(&setup(Resend::new(2048, 3), LiveUpdates::new(300)))
+        .unwrap();
+    let mut station = Station::new();
+    let mut back = BackChannel::default();
+    let mut frames = 0u32;
+    let mut deliver = |out: &[u8], station: &mut Station, back: &mut BackChannel| {
+        // Every 4th frame is lost; garbage on the back channel is refused.
+        for f in out.split(|&b| b == 0).filter(|f| !f.is_empty()) {
+            frames += 1;
+            if frames % 4 != 0 {
+                station.receive(&[&[0], f, &[0]].concat(), back);
+            }
+        }
+        back.bytes.extend_from_slice(&[0, 1, 2, 3, 0]);
+    };
+    for f in 0..12 {
+        let (pose, points, features) = sensor_frame(f as f32 * 0.4);
+        robot.integrate(&pose, &points, &features);
+        let mut out = Vec::new();
+        robot.tick(&mut out, 1500).unwrap();
+        deliver(&out, &mut station, &mut back);
+        robot.poll_acks(&mut back).unwrap();
+    }
+    for _ in 0..200 {
+        let mut out = Vec::new();
+        let _ = robot.drain(&mut out); // Stuck while the re-send buffer waits for acknowledgements
+        robot.tick(&mut out, 1500).unwrap();
+        deliver(&out, &mut station, &mut back);
+        robot.poll_acks(&mut back).unwrap();
+        if robot.is_drained() {
+            break;
+        }
+    }
+    assert!(robot.is_drained(), "{:?}", robot.encoder().stats());
+    assert_eq!(station.final_points, 1200.0, "every point exactly once");
+    let s = robot.encoder().stats();
+    assert!(s.resent > 0 && s.acked > 0, "{s:?}");
+    assert!(s.bad_acks > 0 && robot.ack_stats().accepted > 0);
+}
