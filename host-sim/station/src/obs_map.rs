@@ -5,10 +5,10 @@
 //! core's math: [`ObsStats::merge_scaled`] and [`ObsStats::posterior`]). Voxels live in 8³ blocks found
 //! through one hash lookup; inside a block a voxel is an array index, so a gather's 27 neighbour lookups
 //! cost a few integer operations instead of 27 hash probes, and "every voxel in reach" is a bitmask per
-//! block. Results equal the literal paper update ([`crate::ReferenceMap`]) to f32 rounding (tests).
+//! block. Results equal the literal paper update (host-sim's `ReferenceMap`) to f32 rounding (tests).
 //!
 //! Only the voxel-offset kernel can be gathered from per-voxel statistics; a sub-voxel configuration is
-//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — [`crate::ReferenceMap`] keeps that mode.
+//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — host-sim's `ReferenceMap` keeps that mode.
 
 use latentbki::batch::locate;
 use latentbki::nalgebra::Isometry3;
