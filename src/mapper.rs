@@ -28,8 +28,8 @@ use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 use nalgebra::Isometry3;
 
 mod tap;
-pub use tap::{EvictionTap, LiveUpdates, NoTap};
 use tap::Tapped;
+pub use tap::{EvictionTap, LiveUpdates, NoTap};
 
 /// Everything a [`Mapper`] is configured with; `const`-constructible, so a firmware keeps it in a `static`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -206,7 +206,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     ) -> Result<TickReport, TickError<W::Error>> {
         self.ticks = self.ticks.wrapping_add(1);
         let live_on = self.live.bytes_per_tick > 0
-            && self.ticks % self.live.every_ticks.max(1) == 0
+            && self.ticks.is_multiple_of(self.live.every_ticks.max(1))
             && !self.map.is_empty();
         if !live_on {
             return self
@@ -245,11 +245,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         let settings = *self.encoder.settings();
         let before = self.acks.stats().refused();
         let encoder = &mut self.encoder;
-        let n = self
-            .acks
-            .poll(r, settings.robot, settings.session, |ack| {
-                encoder.acknowledge(&ack);
-            })?;
+        let n = self.acks.poll(r, settings.robot, settings.session, |ack| {
+            encoder.acknowledge(&ack);
+        })?;
         self.encoder
             .count_bad_acks(self.acks.stats().refused().saturating_sub(before));
         Ok(n)
@@ -526,6 +524,7 @@ mod tests {
             codec: SummaryCodec {
                 mean_bits: 1,
                 psi_blocks: 8,
+                mean_bits_growth: 0,
             },
             ..setup()
         };

@@ -5,7 +5,7 @@
 pub mod base_station;
 pub mod bench;
 pub mod cli_args;
-pub mod demo_link;
+pub mod demo_radio;
 pub mod eval;
 pub mod las_frame;
 pub mod link;

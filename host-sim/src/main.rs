@@ -235,17 +235,30 @@ fn integrate<const D: usize>(
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        // The base station's simulated link plugs into the demo here (`Some(Box<dyn VoxelSink>)`).
+        // The robot's link: a simulated faulty serial link both ways to a base station.
         Command::Demo(args) => {
-            // The robot's evictions cross a faulty serial link (byte error rate 1e-4) to a base station.
-            let link = host_sim::demo_link::DemoLink::new(&args.map.config()?, 1e-4, 7)?;
-            let sink = host_sim::demo_link::DemoLinkSink(link.clone());
-            host_sim::eval::cli::demo(&args, Some(Box::new(sink)))?;
-            let mut link = link
+            let session = latentbki::wire::SessionConfig::new(
+                &args.map.config()?,
+                host_sim::eval::methods::D,
+                host_sim::demo_radio::CODEC,
+                latentbki::wire::NO_FEATURE_SPACE,
+            );
+            let radio = host_sim::demo_radio::DemoRadio::new(session, &args.link)?;
+            let link = host_sim::demo_radio::DemoRadioLink(radio.clone());
+            let report = host_sim::eval::cli::demo(&args, Some(Box::new(link)))?;
+            let mut radio = radio
                 .lock()
                 .map_err(|_| anyhow::anyhow!("link state poisoned"))?;
-            link.finish();
-            println!("{}", link.summary());
+            // The f32 reference of all points: the LatentBKI f32 map at the robot's filter size.
+            let f = args.map.config()?.filter_size();
+            if let Some(r) = report
+                .results
+                .iter()
+                .find(|r| r.method == host_sim::eval::experiment::Method::LatentBki(f))
+            {
+                radio.compare_reference(&r.mapper.snapshot());
+            }
+            println!("{}", radio.summary());
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),

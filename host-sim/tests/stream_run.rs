@@ -88,6 +88,7 @@ fn whole_run_with_exact_codes_equals_the_reference_map() {
     let codec = SummaryCodec {
         mean_bits: 8,
         psi_blocks: 8,
+        mean_bits_growth: 0,
     };
     let r = run(codec, &[path(0.5, 11.0, 3.0, 0.0)], 64 * 1024);
     let s = r.base.stats();
@@ -157,6 +158,7 @@ fn two_robots_merge_into_the_all_points_map() {
     let codec = SummaryCodec {
         mean_bits: 8,
         psi_blocks: 8,
+        mean_bits_growth: 0,
     };
     let r = run(
         codec,
@@ -208,6 +210,7 @@ fn codec_trade_off_table() {
         let codec = SummaryCodec {
             mean_bits: bits,
             psi_blocks: 8,
+            mean_bits_growth: 0,
         };
         // What a base station gathers from the summaries at this codec.
         let mut received =

@@ -149,6 +149,8 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     resend_at: usize,
     /// Ticks so far (the re-send clock).
     now: u32,
+    /// Bytes written again, wrapping.
+    resent_bytes: u32,
 }
 
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32), all little-endian.
@@ -188,6 +190,7 @@ const NO_SESSION: SessionConfig = SessionConfig {
     codec: SummaryCodec {
         mean_bits: 0,
         psi_blocks: 0,
+        mean_bits_growth: 0,
     },
     feature_space: 0,
 };
@@ -219,6 +222,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         ring: Ring::EMPTY,
         resend_at: QB,
         now: 0,
+        resent_bytes: 0,
     };
 
     /// An encoder for one session. Fails if the configuration is invalid for D, if the queue cannot hold
@@ -252,6 +256,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.ring = Ring::EMPTY;
         self.resend_at = QB;
         self.now = 0;
+        self.resent_bytes = 0;
         config.validate(D)?;
         let resend = settings.resend.bytes as usize;
         if settings.resend.is_on() && (resend > QB || resend < N + 11) {
@@ -313,6 +318,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// Frames sent and not yet acknowledged (0 without a back channel).
     pub fn unacknowledged(&self) -> usize {
         self.ring.frames()
+    }
+    /// Bytes written again so far (re-sends), wrapping; included in `stats().bytes_sent`.
+    pub fn resent_bytes(&self) -> u32 {
+        self.resent_bytes
     }
     /// Wire bytes of the frames sent and not yet acknowledged.
     pub fn unacknowledged_bytes(&self) -> usize {
@@ -463,7 +472,8 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         if report.bytes + n > budget || !self.can_keep(n) {
             return Ok(false);
         }
-        self.send(w, n, true).map_err(|e| TickError::Write(e, *report))?;
+        self.send(w, n, true)
+            .map_err(|e| TickError::Write(e, *report))?;
         report.frames += 1;
         report.bytes += n;
         Ok(true)
@@ -525,6 +535,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             report.resent_bytes += n;
             self.stats.bytes_sent = self.stats.bytes_sent.wrapping_add(n as u32);
             self.stats.resent = self.stats.resent.wrapping_add(1);
+            self.resent_bytes = self.resent_bytes.wrapping_add(n as u32);
         }
     }
 
@@ -712,13 +723,17 @@ fn append<const D: usize>(
     };
     let at = *used + h;
     let c = match codes {
-        Codes::Queued(codes) => match out.get_mut(at..at + codes.len()) {
-            Some(o) => {
-                o.copy_from_slice(codes);
-                codes.len()
+        Codes::Queued(codes) => {
+            // The queue entry has room for the largest codes; this summary's are the leading ones.
+            let codes = codes.get(..codec.code_len_for(D, count)).unwrap_or(codes);
+            match out.get_mut(at..at + codes.len()) {
+                Some(o) => {
+                    o.copy_from_slice(codes);
+                    codes.len()
+                }
+                None => return false,
             }
-            None => return false,
-        },
+        }
         Codes::Live(obs) => match out.get_mut(at..).map(|o| encode_codes(codec, obs, o)) {
             Some(Ok(c)) => c,
             _ => return false,

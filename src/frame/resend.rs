@@ -270,7 +270,10 @@ mod tests {
         assert_eq!(ring.oldest_seq(&region), Some(3));
         ring.ack(&mut region, 4, 0b11);
         assert_eq!(ring.frames(), 0);
-        assert!(!ring.push(&mut region, 5, 7, &[0; 90]), "larger than the region");
+        assert!(
+            !ring.push(&mut region, 5, 7, &[0; 90]),
+            "larger than the region"
+        );
     }
 
     #[test]

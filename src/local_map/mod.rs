@@ -151,8 +151,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
 
 mod hot;
 mod index;
-mod slots;
 mod live;
+mod slots;
 mod window;
 
 use window::unwrap;

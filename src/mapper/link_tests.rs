@@ -177,7 +177,7 @@ fn with_acknowledgements_nothing_is_lost_on_a_lossy_link() {
         // Every 4th frame is lost; garbage on the back channel is refused.
         for f in out.split(|&b| b == 0).filter(|f| !f.is_empty()) {
             frames += 1;
-            if frames % 4 != 0 {
+            if !frames.is_multiple_of(4) {
                 station.receive(&[&[0], f, &[0]].concat(), back);
             }
         }

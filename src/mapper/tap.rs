@@ -68,4 +68,3 @@ impl<const D: usize, S: EvictionSink<D>, T: EvictionTap<D>> EvictionSink<D> for 
         Ok(())
     }
 }
-

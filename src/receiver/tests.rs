@@ -13,7 +13,12 @@ const D: usize = 8;
 type Enc = FrameEncoder<D, 2048, 256>;
 
 fn config() -> SessionConfig {
-    SessionConfig::new(&MapConfig::DEFAULT, D, SummaryCodec::DEFAULT, NO_FEATURE_SPACE)
+    SessionConfig::new(
+        &MapConfig::DEFAULT,
+        D,
+        SummaryCodec::DEFAULT,
+        NO_FEATURE_SPACE,
+    )
 }
 
 fn obs(i: i32) -> ObsStats<D> {
@@ -24,12 +29,15 @@ fn obs(i: i32) -> ObsStats<D> {
     }
 }
 
+/// A frame accepted (its seq) or refused (why), with its acknowledgement.
+type Outcome = Result<(u32, Option<Ack>), (Refusal, Option<Ack>)>;
+
 /// Every frame the receiver accepts or refuses, in order.
 fn run(
     rx: &mut Receiver<D, 512>,
     sessions: &mut impl SessionTable,
     bytes: &[u8],
-) -> Vec<Result<(u32, Option<Ack>), (Refusal, Option<Ack>)>> {
+) -> Vec<Outcome> {
     let mut out = Vec::new();
     let mut input = bytes;
     loop {
@@ -53,7 +61,8 @@ fn frames(settings: EncoderSettings, voxels: i32) -> (Enc, Vec<u8>) {
     let mut enc = Enc::new(config(), settings).unwrap();
     for i in 0..voxels {
         let o = obs(i);
-        enc.evict(live(VoxelKey::new(i, 0, 0), &o, i as u32)).unwrap();
+        enc.evict(live(VoxelKey::new(i, 0, 0), &o, i as u32))
+            .unwrap();
     }
     let mut out = Vec::new();
     enc.tick(&mut out, 10_000, core::iter::empty()).unwrap();
@@ -126,7 +135,7 @@ fn acknowledgements_free_the_robot_and_lost_frames_are_resent() {
     let mut applied = 0u32;
     let mut next = 0;
     // 40 voxels, 3 per frame at most (small budget); every 3rd frame is lost on the way.
-    let mut written = 0;
+    let mut written = 0u32;
     for _ in 0..200 {
         while next < 40 {
             let o = obs(next);
@@ -143,7 +152,7 @@ fn acknowledgements_free_the_robot_and_lost_frames_are_resent() {
         // Whole frames (`0x00 … 0x00`); every 3rd is lost on the way.
         for frame in out.split(|&b| b == 0).filter(|f| !f.is_empty()) {
             written += 1;
-            if written % 3 == 0 {
+            if written.is_multiple_of(3) {
                 continue;
             }
             let mut input = &[&[0u8][..], frame, &[0]].concat()[..];

@@ -13,10 +13,14 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SummaryCodec {
-    /// Bits per (rotated) mean component, 2..=8.
+    /// Bits per (rotated) mean component of a one-point summary, 2..=8.
     pub mean_bits: u8,
     /// Number of blocks the scatter's block means are sent for, 1..=min(D, 64).
     pub psi_blocks: u8,
+    /// Most bits added to `mean_bits` for summaries of more points: one per doubling of the point count
+    /// n, up to this many (and 8 in all). A receiver gathers means weighted by n, so a voxel of many points
+    /// moves a posterior more than one of few: its mean gets the finer codes. 0 = every summary `mean_bits`.
+    pub mean_bits_growth: u8,
 }
 
 impl Default for SummaryCodec {
@@ -31,6 +35,7 @@ impl SummaryCodec {
     pub const DEFAULT: Self = Self {
         mean_bits: 3,
         psi_blocks: 8,
+        mean_bits_growth: 0,
     };
 
     /// Whether this codec can encode D-dimensional voxels.
@@ -42,12 +47,43 @@ impl SummaryCodec {
         if !(2..=8).contains(&self.mean_bits) || blocks == 0 || blocks > dim.min(64) {
             return Err(WireError::BadConfig);
         }
+        if self.mean_bits_growth > 6 {
+            return Err(WireError::BadConfig);
+        }
         Ok(())
     }
 
-    /// Bytes of the quantized part (mean scale, mean codes, scatter) of a D-dimensional summary.
+    /// Bits per mean component of a summary of `count` points: `mean_bits` + min(⌊log₂ n⌋,
+    /// `mean_bits_growth`), at most 8.
+    pub const fn bits_for(self, count: u32) -> u32 {
+        let grow = if count > 1 { count.ilog2() } else { 0 };
+        let grow = if grow < self.mean_bits_growth as u32 {
+            grow
+        } else {
+            self.mean_bits_growth as u32
+        };
+        let bits = self.mean_bits as u32 + grow;
+        if bits < 8 {
+            bits
+        } else {
+            8
+        }
+    }
+
+    /// Bytes of the quantized part (mean scale, mean codes, and — for n ≥ 2 — the scatter) of a
+    /// D-dimensional summary of `count` points. A single point has no scatter, so none is sent.
+    pub const fn code_len_for(self, dim: usize, count: u32) -> usize {
+        let mean = 1 + (dim * self.bits_for(count) as usize).div_ceil(8);
+        if count < 2 {
+            mean
+        } else {
+            mean + 1 + (self.psi_blocks as usize).div_ceil(2)
+        }
+    }
+
+    /// The largest quantized part of a D-dimensional summary (any point count).
     pub const fn code_len(self, dim: usize) -> usize {
-        1 + (dim * self.mean_bits as usize).div_ceil(8) + 1 + (self.psi_blocks as usize).div_ceil(2)
+        self.code_len_for(dim, MAX_COUNT)
     }
 
     /// Largest wire size of one summary (5-byte key deltas and residency field, 4-byte count).
@@ -254,16 +290,20 @@ pub fn encode_codes<const D: usize>(
 ) -> Result<usize, WireError> {
     codec.validate(D)?;
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
-    let len = codec.code_len(D);
+    let count = wire_count(stats.count).unwrap_or(1);
+    let len = codec.code_len_for(D, count);
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
-    let bits = u32::from(codec.mean_bits);
+    let bits = codec.bits_for(count);
     let (scale_byte, rest) = out.split_first_mut().ok_or(WireError::BufferFull)?;
     let (mean_bytes, psi_bytes) = rest
         .split_at_mut_checked((D * bits as usize).div_ceil(8))
         .ok_or(WireError::BufferFull)?;
-    let [max_byte, block_bytes @ ..] = psi_bytes else {
-        return Err(WireError::BufferFull);
+    // A single point has no scatter: nothing is sent for it.
+    let mut no_scatter = [0u8; 1];
+    let (max_byte, block_bytes) = match psi_bytes {
+        [max_byte, block_bytes @ ..] => (max_byte, block_bytes),
+        [] => (&mut no_scatter[0], &mut [][..]),
     };
     // μ: rotate, scale, mid-rise uniform codes, packed LSB first.
     let mut t = stats.mean;
@@ -340,8 +380,11 @@ pub fn decode_codes<const D: usize>(
     bytes: &[u8],
 ) -> Result<ObsStats<D>, WireError> {
     codec.validate(D)?;
-    let bytes = bytes.get(..codec.code_len(D)).ok_or(WireError::Truncated)?;
-    let bits = usize::from(codec.mean_bits);
+    let n = wire_count(count).ok_or(WireError::BadCount)?;
+    let bytes = bytes
+        .get(..codec.code_len_for(D, n))
+        .ok_or(WireError::Truncated)?;
+    let bits = codec.bits_for(n) as usize;
     let levels = 1u32 << bits;
     let scale = log_value(bytes[0], SCALE_OFFSET);
     let mut t = [0.0f32; D];
@@ -359,7 +402,7 @@ pub fn decode_codes<const D: usize>(
         hadamard(&mut t);
     }
     let psi_at = 1 + (D * bits).div_ceil(8);
-    let psi_max = log_value(bytes[psi_at], PSI_OFFSET);
+    let psi_max = log_value(bytes.get(psi_at).copied().unwrap_or(0), PSI_OFFSET);
     let mut scatter = [0.0f32; D];
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
     if psi_max > 0.0 {
@@ -378,10 +421,11 @@ pub fn decode_codes<const D: usize>(
     })
 }
 
-/// Largest error of a decoded mean, ‖μ̂ − μ‖₂, for the μ scale code sent: √D × half a quantization step.
-pub fn mean_error_bound(codec: SummaryCodec, dim: usize, scale_code: u8) -> f32 {
+/// Largest error of a decoded mean, ‖μ̂ − μ‖₂, for the μ scale code sent and the summary's point count:
+/// √D × half a quantization step.
+pub fn mean_error_bound(codec: SummaryCodec, dim: usize, scale_code: u8, count: u32) -> f32 {
     let scale = log_value(scale_code, SCALE_OFFSET);
-    libm::sqrtf(dim as f32) * scale / (1u32 << codec.mean_bits) as f32
+    libm::sqrtf(dim as f32) * scale / (1u32 << codec.bits_for(count)) as f32
 }
 
 /// Write one summary: key deltas, residency delta with the final flag, point count, codes. `codes` come
@@ -446,9 +490,9 @@ pub fn decode_summary<const D: usize>(
     if !(1..=u64::from(MAX_COUNT)).contains(&count) {
         return Err(WireError::BadCount);
     }
-    let codes = take(bytes, at, codec.code_len(D))?;
+    let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
     let obs = decode_codes::<D>(codec, count as f32, codes)?;
-    let psi_at = 1 + (D * usize::from(codec.mean_bits)).div_ceil(8);
+    let psi_at = 1 + (D * codec.bits_for(count as u32) as usize).div_ceil(8);
     let at_ceiling = Ceiling {
         mean_scale: codes.first() == Some(&u8::MAX),
         psi: codes.get(psi_at) == Some(&u8::MAX),

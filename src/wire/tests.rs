@@ -137,7 +137,7 @@ fn summary_round_trip_within_bounds() {
         let mut codes = [0u8; 64];
         encode_codes(codec, &sent[i], &mut codes).unwrap();
         assert!(
-            err <= mean_error_bound(codec, 64, codes[0]) * 1.0001,
+            err <= mean_error_bound(codec, 64, codes[0], sent[i].count as u32) * 1.0001,
             "mean error {err}"
         );
         // The largest block mean is sent relative to the largest entry, rounded up.
@@ -167,6 +167,7 @@ fn block_means_of_the_scatter_merge_additively() {
     let codec = SummaryCodec {
         mean_bits: 8,
         psi_blocks: 8,
+        mean_bits_growth: 0,
     };
     let s = sample::<64>(3);
     let mut codes = [0u8; 128];

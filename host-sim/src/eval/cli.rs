@@ -3,7 +3,7 @@
 
 use super::experiment::{self, Method, Setup};
 use super::figures::{self, TopDown};
-use super::methods::{Decoder, VoxelSink, D};
+use super::methods::{Decoder, Radio, D};
 use super::scenes::{self, Report, Scene, SceneOptions, SceneSource};
 use crate::cli_args::{MapArgs, TileArgs};
 use crate::sim::vocab::Vocabulary;
@@ -38,6 +38,9 @@ pub struct DemoArgs {
     /// The map configuration.
     #[command(flatten)]
     pub map: MapArgs,
+    /// The robot's link to the base station.
+    #[command(flatten)]
+    pub link: crate::demo_radio::LinkArgs,
 }
 
 /// `eval` options.
@@ -145,8 +148,9 @@ fn print_report(r: &Report) {
 
 /// `demo`: the real tile, default configuration, the on-device map, the table and the pictures.
 ///
-/// `link` receives every voxel the device map evicts: the base station's simulated link plugs in here.
-pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
+/// The robot's link goes to `link`: the base station's simulated radio plugs in here. Returns the report
+/// (its methods' maps, e.g. the f32 reference the radio compares the base station with).
+pub fn demo(args: &DemoArgs, link: Option<Box<dyn Radio>>) -> Result<scenes::Report> {
     let start = Instant::now();
     let setup = Setup {
         seed: args.seed,
@@ -166,7 +170,7 @@ pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
     let path = write_results(&args.out, std::slice::from_ref(&report), "demo")?;
     println!("wrote {}", path.display());
     println!("done in {:.1} s", start.elapsed().as_secs_f64());
-    Ok(())
+    Ok(report)
 }
 
 /// `eval`: both scenes (or one), every method, the sweep, the curves and the pictures.

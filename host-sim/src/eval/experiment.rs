@@ -15,8 +15,8 @@
 //! results do not depend on scheduling: same seed, same table.
 
 use super::methods::{
-    CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, Mapper, OnDevice,
-    RunningMean, SegmentationOnly, VoxelSink, D,
+    CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, Mapper, OnDevice, Radio,
+    RunningMean, SegmentationOnly, D,
 };
 use super::metrics::Confusion;
 use super::sparsification::Scored;
@@ -243,7 +243,7 @@ fn build(
     config: &MapConfig,
     dec: &Decoding,
     setup: &Setup,
-    link: Option<Box<dyn VoxelSink>>,
+    link: Option<Box<dyn Radio>>,
 ) -> anyhow::Result<Box<dyn Mapper>> {
     let e = |e: latentbki::ConfigError| anyhow::anyhow!("{}: {e}", method.label());
     Ok(match method {
@@ -257,9 +257,10 @@ fn build(
             LatentBki::new(with_filter(config, f)?)
                 .map_err(|err| anyhow::anyhow!("{}: {err}", method.label()))?,
         ),
-        Method::OnDevice(f) => {
-            Box::new(OnDevice::new(with_filter(config, f)?, setup.device_window, link).map_err(e)?)
-        }
+        Method::OnDevice(f) => Box::new(
+            OnDevice::new(with_filter(config, f)?, setup.device_window, link)
+                .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?,
+        ),
     })
 }
 
@@ -312,7 +313,7 @@ fn run_one(
     method: Method,
     inputs: &Inputs<'_>,
     score: bool,
-    link: Option<Box<dyn VoxelSink>>,
+    link: Option<Box<dyn Radio>>,
     bar: &ProgressBar,
 ) -> anyhow::Result<MethodResult> {
     let Inputs {
@@ -453,7 +454,7 @@ pub fn run(
     methods: &[Method],
     inputs: &Inputs<'_>,
     score: Option<Method>,
-    link: Option<Box<dyn VoxelSink>>,
+    link: Option<Box<dyn Radio>>,
     message: &str,
 ) -> anyhow::Result<Vec<MethodResult>> {
     let (results, _) = run_with_sweep(methods, inputs, score, link, &Sweep::none(), message)?;
@@ -466,7 +467,7 @@ pub fn run_with_sweep(
     methods: &[Method],
     inputs: &Inputs<'_>,
     score: Option<Method>,
-    link: Option<Box<dyn VoxelSink>>,
+    link: Option<Box<dyn Radio>>,
     sweep: &Sweep,
     message: &str,
 ) -> anyhow::Result<(Vec<MethodResult>, Vec<SweepPoint>)> {

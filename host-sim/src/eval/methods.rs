@@ -10,17 +10,19 @@
 //!   by the same sparse kernel table (the closed-dictionary semantic BKI of the paper's Table I).
 //! - **LatentBKI** on the f32 [`ObsMap`] (f = 1, 3, 5 …): per-voxel observation statistics gathered
 //!   through the kernel, equal to the paper's batch update of [`crate::ReferenceMap`] to f32 rounding.
-//! - **LatentBKI on the device map**: the quantized, fixed-capacity [`LocalMap`]; voxels it evicts go
-//!   through a [`VoxelSink`] (the base-station link plugs in there) and are merged back for evaluation, as
-//!   the base station does.
+//! - **LatentBKI on the device**: the firmware's own [`latentbki::Mapper`] (quantized, fixed-capacity map
+//!   and frame encoder); every voxel it hands to the link is tapped with its exact statistics and merged
+//!   back for evaluation, as the base station does. Its link goes to a [`Radio`] (the demo's faulty link
+//!   and base station plug in there) or, without one, nowhere.
 //!
 //! Every map method uses the core's keys, kernel table, locate/spread, statistics and gather: no second copy
 //! of the math.
 
 use crate::ObsMap;
-use latentbki::local_map::LocalMap;
+use latentbki::frame::EncoderSettings;
 use latentbki::{
-    locate, spread, Codebook, KernelLut, MapConfig, ObsLookup, ObsStats, VoxelKey, VoxelStats,
+    locate, spread, Codebook, Evicted, KernelLut, MapConfig, ObsLookup, ObsStats, Setup, VoxelKey,
+    VoxelStats,
 };
 use std::collections::HashMap;
 
@@ -255,51 +257,86 @@ impl Mapper for LatentBki {
 pub const PACKED: usize = latentbki::packed_len(D);
 /// Voxels the simulated device holds (the host runs it with a generous pool; the firmware's is smaller).
 pub const DEVICE_CAPACITY: usize = 60_000;
-/// The on-device map type the simulator runs.
-pub type DeviceMap = LocalMap<D, DEVICE_CAPACITY, PACKED>;
+/// Bytes of the robot's link queue (evicted voxels, and unacknowledged frames with a back channel).
+pub const DEVICE_QUEUE: usize = 32 * 1024;
+/// Largest frame on the robot's link.
+pub const DEVICE_FRAME: usize = 512;
+/// The robot the simulator runs: the firmware's `Mapper`.
+pub type DeviceRobot = latentbki::Mapper<D, DEVICE_CAPACITY, PACKED, DEVICE_QUEUE, DEVICE_FRAME>;
 
-/// Where the device's evicted voxels go: the base-station link plugs in here.
-pub trait VoxelSink: Send {
-    /// One evicted voxel (key, what was observed in it during its residency, residency number).
-    fn voxel(&mut self, key: VoxelKey, obs: &ObsStats<D>, residency: u32);
-    /// End of the run: every voxel has been handed over; `robot` is the robot's whole map as it holds it
-    /// (what was streamed, unquantized by the wire) for comparisons.
+/// Where the robot's link goes: the demo's faulty link and base station plug in here.
+pub trait Radio: Send {
+    /// The robot's setup, adjusted for this link (back channel, live updates).
+    fn setup(&self, setup: Setup) -> Setup {
+        setup
+    }
+    /// After each sensor frame: the robot's tick over the link, and whatever comes back.
+    fn tick(&mut self, robot: &mut DeviceRobot);
+    /// End of the run: everything the robot holds goes out; `tap` sees every voxel handed to the link.
+    fn drain(&mut self, robot: &mut DeviceRobot, tap: &mut dyn FnMut(&Evicted<'_, D>));
+    /// After draining: the robot's whole map as it held it (unquantized by the wire), for comparisons.
     fn finish(&mut self, _robot: &ObsMap<D>, _decoder: &Decoder) {}
 }
 
-/// LatentBKI on the quantized on-device map, with its evictions merged back on the host.
+/// A link to nowhere: the robot's frames are written and forgotten.
+struct Nowhere;
+
+impl embedded_io::ErrorType for Nowhere {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io::Write for Nowhere {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// LatentBKI on the robot's own `Mapper`, with what it hands to the link merged back on the host.
 pub struct OnDevice {
-    map: Box<DeviceMap>,
-    /// Evicted voxels merged per key (what the base station's global map holds).
+    robot: Box<DeviceRobot>,
+    /// Voxels handed to the link, merged per key (what the base station's global map holds).
     evicted: HashMap<VoxelKey, ObsStats<D>>,
-    link: Option<Box<dyn VoxelSink>>,
+    link: Option<Box<dyn Radio>>,
+}
+
+/// Merge a tapped voxel into the host's record of what was handed to the link.
+fn record(evicted: &mut HashMap<VoxelKey, ObsStats<D>>, v: &Evicted<'_, D>) {
+    evicted
+        .entry(v.key)
+        .and_modify(|m| m.merge(v.obs))
+        .or_insert(*v.obs);
 }
 
 impl OnDevice {
-    /// A device map with a window of `window_radius` metres around the robot; `link` also receives every
-    /// evicted voxel (e.g. the simulated radio to the base station).
+    /// A robot with a window of `window_radius` metres around it; its link goes to `link` (e.g. the
+    /// simulated radio to the base station), or nowhere.
     pub fn new(
         config: MapConfig,
         window_radius: f32,
-        link: Option<Box<dyn VoxelSink>>,
-    ) -> Result<Self, latentbki::ConfigError> {
-        let mut map: Box<DeviceMap> = Box::new(LocalMap::EMPTY);
-        map.configure(config, window_radius)?;
+        link: Option<Box<dyn Radio>>,
+    ) -> Result<Self, latentbki::SetupError> {
+        let mut robot: Box<DeviceRobot> = Box::new(DeviceRobot::EMPTY);
+        let setup = Setup::new(config, window_radius, EncoderSettings::new(1, 1));
+        let setup = link.as_ref().map_or(setup, |l| l.setup(setup));
+        robot.configure(&setup)?;
         Ok(Self {
-            map,
+            robot,
             evicted: HashMap::new(),
             link,
         })
     }
 
-    /// The device map.
-    pub fn device(&self) -> &DeviceMap {
-        &self.map
+    /// The robot.
+    pub fn robot(&self) -> &DeviceRobot {
+        &self.robot
     }
 
     /// Everything observed in a voxel: the merged evictions and the resident statistics.
     pub fn combined(&self, key: VoxelKey) -> Option<ObsStats<D>> {
-        match (self.evicted.get(&key), self.map.get(key)) {
+        match (self.evicted.get(&key), self.robot.map().get(key)) {
             (Some(e), Some(r)) => {
                 let mut m = *e;
                 m.merge(&r);
@@ -313,7 +350,7 @@ impl OnDevice {
     /// Keys observed (evicted or resident).
     pub fn keys(&self) -> Vec<VoxelKey> {
         let mut k: Vec<VoxelKey> = self.evicted.keys().copied().collect();
-        k.extend(self.map.iter().map(|v| v.key));
+        k.extend(self.robot.map().iter().map(|v| v.key));
         k.sort_unstable();
         k.dedup();
         k
@@ -321,33 +358,13 @@ impl OnDevice {
 
     /// Everything observed, in the host's block map (gathers every posterior in one pass).
     pub fn observation_map(&self) -> ObsMap<D> {
-        let mut m = ObsMap::new(*self.map.config()).expect("configured in `new`");
+        let mut m = ObsMap::new(*self.robot.map().config()).expect("configured in `new`");
         for k in self.keys() {
             if let Some(o) = self.combined(k) {
                 m.merge_observations(k, &o);
             }
         }
         m
-    }
-}
-
-/// The device's eviction sink: every evicted voxel goes to the link (if any) and is merged as the base
-/// station merges it.
-struct Evictions<'a> {
-    evicted: &'a mut HashMap<VoxelKey, ObsStats<D>>,
-    link: &'a mut Option<Box<dyn VoxelSink>>,
-}
-
-impl latentbki::EvictionSink<D> for Evictions<'_> {
-    fn evict(&mut self, e: latentbki::Evicted<'_, D>) -> Result<(), latentbki::SinkFull> {
-        if let Some(l) = self.link.as_mut() {
-            l.voxel(e.key, e.obs, e.residency);
-        }
-        self.evicted
-            .entry(e.key)
-            .and_modify(|m| m.merge(e.obs))
-            .or_insert(*e.obs);
-        Ok(())
     }
 }
 
@@ -359,20 +376,28 @@ impl ObsLookup<D> for OnDevice {
 
 impl Mapper for OnDevice {
     fn integrate(&mut self, frame: &EncodedFrame) {
-        let mut sink = Evictions {
-            evicted: &mut self.evicted,
-            link: &mut self.link,
-        };
-        self.map
-            .integrate(&frame.pose, &frame.points, &frame.features, &mut sink);
+        let evicted = &mut self.evicted;
+        self.robot.integrate_tapped(
+            &frame.pose,
+            &frame.points,
+            &frame.features,
+            |v: &Evicted<'_, D>| record(evicted, v),
+        );
+        match &mut self.link {
+            Some(l) => l.tick(&mut self.robot),
+            None => {
+                let _ = self.robot.tick(&mut Nowhere, usize::MAX);
+            }
+        }
     }
     fn predict(&self, decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
         decode(decoder, &self.posterior(p)?.mean)
     }
     fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
-        let key = key_of(p, self.map.config())?;
-        let obs = latentbki::gather(self.map.kernel(), self, key).ok()?;
-        (!obs.is_empty()).then(|| obs.posterior(&self.map.prior()))
+        let map = self.robot.map();
+        let key = key_of(p, map.config())?;
+        let obs = latentbki::gather(map.kernel(), self, key).ok()?;
+        (!obs.is_empty()).then(|| obs.posterior(&map.prior()))
     }
     fn voxels(&self) -> usize {
         self.observation_map().in_reach_len()
@@ -381,13 +406,16 @@ impl Mapper for OnDevice {
         self.observation_map().posteriors_sorted()
     }
     fn finish(&mut self, decoder: &Decoder) {
-        // Stream what the map still holds: the robot's last word on every voxel.
-        let mut sink = Evictions {
-            evicted: &mut self.evicted,
-            link: &mut self.link,
-        };
-        // The sink never refuses.
-        let _ = self.map.flush(&mut sink);
+        // Stream what the robot still holds: its last word on every voxel.
+        let evicted = &mut self.evicted;
+        let mut tap = |v: &Evicted<'_, D>| record(evicted, v);
+        match &mut self.link {
+            Some(l) => l.drain(&mut self.robot, &mut tap),
+            None => {
+                // Nowhere never refuses: the drain completes.
+                let _ = self.robot.drain_tapped(&mut Nowhere, &mut tap);
+            }
+        }
         let robot = self.observation_map();
         if let Some(l) = self.link.as_mut() {
             l.finish(&robot, decoder);

@@ -10,7 +10,7 @@
 
 use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
 use super::figures::{self, TopDown};
-use super::methods::{Decoder, VoxelSink};
+use super::methods::{Decoder, Radio};
 use super::sparsification::{self, Sparsification};
 use crate::cli_args::TileArgs;
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
@@ -326,7 +326,7 @@ pub fn run(
     setup: &Setup,
     out: &Path,
     sweep: bool,
-    link: Option<Box<dyn VoxelSink>>,
+    link: Option<Box<dyn Radio>>,
 ) -> Result<Report> {
     let vocab = Vocabulary::builtin();
     let source = SceneSource::new(scene, options, setup.seed)?;

@@ -470,6 +470,7 @@ mod tests {
             SummaryCodec {
                 mean_bits: 8,
                 psi_blocks: 4,
+                mean_bits_growth: 0,
             },
             0,
         );

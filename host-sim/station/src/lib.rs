@@ -1,10 +1,12 @@
 //! The base station: bytes from any number of robots in, one global map out.
 //!
-//! [`BaseStation::receive`] takes bytes in whatever chunks the port delivers. Each frame is checked layer by
-//! layer — COBS and CRC ([`latentbki::frame::FrameDecoder`]), protocol version and parse
-//! ([`latentbki::wire::parse_body`]), configuration id, sequence number per `(robot, session)`
-//! ([`latentbki::frame::SeqTracker`]) and every summary in it — and is applied to the [`GlobalMap`] only if
-//! all of it passes; every refusal is counted by reason, every gap in sequence numbers is counted as lost.
+//! [`BaseStation::receive`] takes bytes in whatever chunks the port delivers. The core's
+//! [`latentbki::receiver::Receiver`] checks each frame layer by layer — COBS and CRC, protocol version and
+//! parse, configuration id, every summary in it, sequence number per `(robot, session)` — and a frame is
+//! applied to the [`GlobalMap`] only if all of it passes; every refusal is counted by reason, every gap in
+//! sequence numbers is counted as lost. Each accepted (or repeated) frame is acknowledged: the
+//! acknowledgements of one `receive` call wait in [`BaseStation::take_acks`] for the link's other direction
+//! (protocol 3; a link without one ignores them).
 //! What changed since the last commit (voxels touched, sessions whose frames touched them) is tracked so
 //! that [`BaseStation::changes`] hands a [`store::MapStore`] exactly that, at frame boundaries only: a
 //! frame's summaries and the sequence state that marks it merged are always in the same change set.
@@ -26,8 +28,9 @@ pub use global_map::{
 };
 pub use obs_map::ObsMap;
 
-use latentbki::frame::{DecoderStats, Feed, FrameDecoder, SeqTracker, SeqVerdict};
-use latentbki::wire::{parse_body, LinkStats, Message, SessionConfig, Summary, WireError};
+use latentbki::frame::{Ack, DecoderStats, SeqTracker};
+use latentbki::receiver::{Receipt, Receiver, SessionTable};
+use latentbki::wire::{LinkStats, Message, SessionConfig, Summary, WireError};
 use latentbki::VoxelKey;
 use std::collections::{BTreeMap, HashSet};
 use store::{Changes, MapStore, Snapshot, StoreError};
@@ -35,22 +38,8 @@ use store::{Changes, MapStore, Snapshot, StoreError};
 /// Largest encoded frame the base station accepts (bytes between delimiters).
 pub const MAX_FRAME: usize = 4096;
 
-/// Frames and summaries refused or ignored after COBS/CRC, by reason.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Rejections {
-    /// Unknown protocol version.
-    pub version: u32,
-    /// Did not parse (or trailing bytes).
-    pub malformed: u32,
-    /// Configuration id is not the map's, or a session header with another configuration.
-    pub wrong_config: u32,
-    /// A summary in the frame was invalid (bad key, λ): the whole frame was refused.
-    pub invalid_voxel: u32,
-    /// Frame received before (by sequence number).
-    pub duplicate_frames: u32,
-    /// Frame older than the sequence window.
-    pub too_old: u32,
-}
+/// Frames refused after COBS/CRC, by reason (the core receiver's counters).
+pub use latentbki::receiver::Refusals as Rejections;
 
 /// What the base station has seen.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -151,9 +140,12 @@ pub struct JournalEntry {
 
 /// Receives frames and keeps the global map.
 pub struct BaseStation<const D: usize> {
-    decoder: Box<FrameDecoder<MAX_FRAME>>,
-    expected: Option<SessionConfig>,
+    receiver: Box<Receiver<D, MAX_FRAME>>,
     map: Option<GlobalMap<D>>,
+    /// The newest acknowledgement of each session this `receive` call touched.
+    acks: BTreeMap<(u16, u32), Ack>,
+    /// Acknowledgements on the wire, waiting for [`BaseStation::take_acks`].
+    ack_bytes: Vec<u8>,
     sessions: BTreeMap<(u16, u32), SessionState>,
     stats: ReceiveStats,
     journal: Option<Vec<JournalEntry>>,
@@ -188,9 +180,10 @@ impl<const D: usize> BaseStation<D> {
             .as_ref()
             .map_or_else(HashSet::new, |m| m.voxels().map(|(k, _)| *k).collect());
         Self {
-            decoder: Box::new(FrameDecoder::new()),
-            expected,
+            receiver: Box::new(Receiver::new(expected)),
             map,
+            acks: BTreeMap::new(),
+            ack_bytes: Vec::new(),
             sessions: BTreeMap::new(),
             stats: ReceiveStats::default(),
             journal: None,
@@ -313,7 +306,8 @@ impl<const D: usize> BaseStation<D> {
     /// Counters so far.
     pub fn stats(&self) -> ReceiveStats {
         let mut s = self.stats;
-        s.decoder = self.decoder.stats();
+        s.decoder = self.receiver.decoder_stats();
+        s.rejected = self.receiver.refusals();
         s.lost = self.sessions.values().map(|v| v.seq.lost).sum();
         s.late = self.sessions.values().map(|v| v.seq.late).sum();
         s
@@ -323,116 +317,101 @@ impl<const D: usize> BaseStation<D> {
         &self.sessions
     }
 
-    /// Feed received bytes (any chunking).
+    /// Feed received bytes (any chunking). Acknowledgements of what they carried wait in
+    /// [`Self::take_acks`].
     pub fn receive(&mut self, mut bytes: &[u8]) {
         while !bytes.is_empty() {
-            // The body borrows the decoder: copy it out (frames are small) to apply it.
-            let (body, rest) = match self.decoder.feed(bytes) {
-                Feed::NeedMore => return,
-                Feed::Error { rest, .. } => {
-                    bytes = rest;
-                    continue;
-                }
-                Feed::Frame { body, rest } => (body.to_vec(), rest),
+            let mut table = Table {
+                sessions: &mut self.sessions,
+                dirty: &mut self.dirty_sessions,
+            };
+            let (frame, ack, rest) = match self.receiver.feed(bytes, &mut table) {
+                Receipt::NeedMore => break,
+                Receipt::Refused { ack, rest, .. } => (None, ack, rest),
+                Receipt::Accepted { frame, rest } => (Some(frame), frame.ack, rest),
             };
             bytes = rest;
-            self.frame(&body);
+            if let Some(a) = ack {
+                self.acks.insert((a.robot, a.session), a);
+            }
+            let Some(frame) = frame else { continue };
+            if self.map.is_none() {
+                // The receiver adopted the first valid session header's configuration.
+                self.map = GlobalMap::new(frame.config).ok();
+                self.config_dirty = self.map.is_some();
+            }
+            let header = frame.header;
+            let state = self
+                .sessions
+                .entry((header.robot, header.session))
+                .or_default();
+            self.stats.frames += 1;
+            match frame.message {
+                Message::Session(_) => state.header_seen = true,
+                Message::Stats(l) => state.link = Some(l),
+                Message::Voxels(_) => {}
+            }
+            if let Some(j) = &mut self.journal {
+                j.push(JournalEntry {
+                    robot: header.robot,
+                    session: header.session,
+                    seq: header.seq,
+                    body: frame.body.to_vec(),
+                });
+            }
+            let Message::Voxels(batch) = frame.message else {
+                continue;
+            };
+            let Some(map) = &mut self.map else { continue };
+            // Every summary was validated by the receiver before the frame was accepted.
+            for s in batch.iter::<D>(frame.config.codec).flatten() {
+                Self::apply(map, &mut self.stats, &mut self.dirty_voxels, &header, &s);
+            }
+        }
+        for a in std::mem::take(&mut self.acks).into_values() {
+            let mut wire = [0u8; latentbki::frame::ack::MAX_ACK_WIRE];
+            if let Some(n) = a.encode(&mut wire) {
+                self.ack_bytes.extend_from_slice(&wire[..n]);
+            }
         }
     }
 
-    fn frame(&mut self, body: &[u8]) {
-        let (header, message) = match parse_body(body) {
-            Ok(x) => x,
-            Err(WireError::UnknownVersion(_)) => {
-                self.stats.rejected.version += 1;
-                return;
-            }
-            Err(_) => {
-                self.stats.rejected.malformed += 1;
-                return;
-            }
-        };
-        // Adopt the first valid session header's configuration if none was given.
-        if self.expected.is_none() {
-            if let Message::Session(c) = message {
-                if c.id() == header.config_id && c.validate(D).is_ok() {
-                    if let Ok(map) = GlobalMap::new(c) {
-                        self.expected = Some(c);
-                        self.map = Some(map);
-                        self.config_dirty = true;
-                    }
-                }
-            }
-        }
-        let Some(expected) = self.expected else {
-            self.stats.rejected.wrong_config += 1;
-            return;
-        };
-        let session_ok = match message {
-            Message::Session(c) => c == expected,
-            _ => true,
-        };
-        if header.config_id != expected.id() || !session_ok {
-            self.stats.rejected.wrong_config += 1;
-            return;
-        }
-        // Validate every summary before anything is applied.
-        let summaries: Vec<Summary<D>> = match message {
-            Message::Voxels(batch) => {
-                match batch.iter::<D>(expected.codec).collect::<Result<_, _>>() {
-                    Ok(v) => v,
-                    Err(_) => {
-                        self.stats.rejected.invalid_voxel += 1;
-                        return;
-                    }
-                }
-            }
-            _ => Vec::new(),
-        };
-        let state = self
-            .sessions
-            .entry((header.robot, header.session))
-            .or_default();
-        // Every verdict changes the tracker's counters: the session is a change either way.
-        self.dirty_sessions.insert((header.robot, header.session));
-        match state.seq.accept(header.seq) {
-            SeqVerdict::New | SeqVerdict::Late => {}
-            SeqVerdict::Duplicate => {
-                self.stats.rejected.duplicate_frames += 1;
-                return;
-            }
-            SeqVerdict::TooOld => {
-                self.stats.rejected.too_old += 1;
+    /// The acknowledgements to send back to the robots (bytes for the link's other direction), taken.
+    pub fn take_acks(&mut self) -> Vec<u8> {
+        std::mem::take(&mut self.ack_bytes)
+    }
+
+    fn apply(
+        map: &mut GlobalMap<D>,
+        stats: &mut ReceiveStats,
+        dirty: &mut HashSet<VoxelKey>,
+        header: &latentbki::wire::FrameHeader,
+        s: &Summary<D>,
+    ) {
+        match map.apply(header.robot, header.session, header.seq, s) {
+            Applied::Merged => stats.merged += 1,
+            Applied::Updated => stats.updated += 1,
+            Applied::Stale | Applied::DuplicateFinal => {
+                stats.ignored += 1;
                 return;
             }
         }
-        self.stats.frames += 1;
-        match message {
-            Message::Session(_) => state.header_seen = true,
-            Message::Stats(l) => state.link = Some(l),
-            Message::Voxels(_) => {}
-        }
-        if let Some(j) = &mut self.journal {
-            j.push(JournalEntry {
-                robot: header.robot,
-                session: header.session,
-                seq: header.seq,
-                body: body.to_vec(),
-            });
-        }
-        let Some(map) = &mut self.map else { return };
-        for s in &summaries {
-            match map.apply(header.robot, header.session, header.seq, s) {
-                Applied::Merged => self.stats.merged += 1,
-                Applied::Updated => self.stats.updated += 1,
-                Applied::Stale | Applied::DuplicateFinal => {
-                    self.stats.ignored += 1;
-                    continue;
-                }
-            }
-            self.dirty_voxels.insert(s.key);
-            self.stats.clamped_mean_scale += u32::from(s.at_ceiling.mean_scale);
-            self.stats.clamped_psi += u32::from(s.at_ceiling.psi);
-        }
+        dirty.insert(s.key);
+        stats.clamped_mean_scale += u32::from(s.at_ceiling.mean_scale);
+        stats.clamped_psi += u32::from(s.at_ceiling.psi);
+    }
+}
+
+/// The base station's sessions as the core receiver's [`SessionTable`]: unbounded, and every session the
+/// receiver's sequence tracking touches is a change for the store.
+struct Table<'a> {
+    sessions: &'a mut BTreeMap<(u16, u32), SessionState>,
+    dirty: &'a mut HashSet<(u16, u32)>,
+}
+
+impl SessionTable for Table<'_> {
+    fn tracker(&mut self, robot: u16, session: u32) -> Option<&mut SeqTracker> {
+        self.dirty.insert((robot, session));
+        Some(&mut self.sessions.entry((robot, session)).or_default().seq)
     }
 }

@@ -1,0 +1,381 @@
+//! The demo's radio: the robot's `Mapper` ticks into a simulated faulty serial link, a base station
+//! receives what arrives and acknowledges it over the link's other direction (faulty too), and the robot
+//! reads the acknowledgements — exactly as a robot's UART pair would carry them. No robot is assembled
+//! here: the robot is the evaluation's on-device `Mapper`, and this is only the air and the base station.
+//!
+//! Time: one tick per sensor frame, [`TICK_MS`] of link time, [`BUDGET`] bytes (a 115,200 baud UART at
+//! ten ticks per second). At the end the robot drains and the radio keeps ticking until the base station
+//! has acknowledged everything (with a back channel) or the robot has sent everything (without one).
+
+use crate::base_station::BaseStation;
+use crate::eval::methods::{Decoder, DeviceRobot, Radio, D};
+use crate::link::{ByteLog, Faults, FaultyWriter, Pipe};
+use crate::ObsMap;
+use clap::Args;
+use latentbki::frame::Resend;
+use latentbki::mapper::LiveUpdates;
+use latentbki::wire::SessionConfig;
+use latentbki::{Evicted, Setup, VoxelKey, VoxelStats};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// The demo's summary codec: 3-bit means for a one-point voxel, one more bit per doubling of its points
+/// (up to 3 more), 4 scatter blocks. (The tile's LiDAR voxels hold 3.5 points on average: most bytes go to
+/// voxels of one or two points, while the voxels of many points, which move posteriors most, get 4–6 bits.)
+pub const CODEC: latentbki::wire::SummaryCodec = latentbki::wire::SummaryCodec {
+    mean_bits: 3,
+    psi_blocks: 4,
+    mean_bits_growth: 3,
+};
+
+/// Bytes the robot may send per tick.
+pub const BUDGET: usize = 11_520;
+/// Link time per tick (ms).
+pub const TICK_MS: u64 = 100;
+/// Ticks the end of a run may take to get everything acknowledged before the radio gives up (and counts
+/// what is missing).
+const DRAIN_TICKS: u32 = 20_000;
+
+/// The demo's link, from the command line.
+#[derive(Args, Debug, Clone)]
+pub struct LinkArgs {
+    /// Byte error rate of the link (both directions); dropped bytes and bursts of garbage scale with it.
+    #[arg(long, default_value_t = 1e-4)]
+    pub ber: f64,
+    /// Fraction of frames dropped whole.
+    #[arg(long, default_value_t = 0.02)]
+    pub frame_drops: f64,
+    /// Longest delay of a delayed frame (5 % are delayed, so later frames overtake them), ms.
+    #[arg(long, default_value_t = 300)]
+    pub max_delay_ms: u64,
+    /// An outage of `--outage-secs` every this many seconds (0 = none).
+    #[arg(long, default_value_t = 0.0)]
+    pub outage_every_secs: f64,
+    /// How long each outage lasts (s).
+    #[arg(long, default_value_t = 3.0)]
+    pub outage_secs: f64,
+    /// No back channel: frames are sent once and what the link loses is lost (and counted).
+    #[arg(long)]
+    pub no_back_channel: bool,
+    /// Bytes per tick for live updates of the voxels the robot holds (0 = only final voxels).
+    #[arg(long, default_value_t = 2048)]
+    pub live_bytes: u32,
+    /// Bytes of the robot's queue budget that hold unacknowledged frames.
+    #[arg(long, default_value_t = 16 * 1024)]
+    pub resend_bytes: u32,
+    /// Seed of the link's faults.
+    #[arg(long, default_value_t = 7)]
+    pub link_seed: u64,
+}
+
+impl LinkArgs {
+    /// The faults of one direction.
+    pub fn faults(&self) -> anyhow::Result<Faults> {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.ber) && (0.0..=1.0).contains(&self.frame_drops),
+            "--ber and --frame-drops are probabilities in [0, 1]"
+        );
+        anyhow::ensure!(
+            self.outage_every_secs >= 0.0 && self.outage_secs >= 0.0,
+            "--outage-every-secs and --outage-secs must be >= 0"
+        );
+        let every = (self.outage_every_secs * 1000.0) as u64;
+        let outage = ((self.outage_secs * 1000.0) as u64).min(every);
+        Ok(
+            Faults::with_drops_and_delays(self.ber, self.frame_drops, self.max_delay_ms)
+                .with_outages(every, outage),
+        )
+    }
+}
+
+/// What the robot reported about its link at the end.
+#[derive(Clone, Copy, Debug)]
+struct RobotAccount {
+    /// Points it integrated (all handed to the link by the end).
+    points: f64,
+    /// Final summaries it sent (voxels evicted).
+    voxels: u32,
+    /// Its link counters.
+    stats: latentbki::wire::LinkStats,
+    resent_bytes: u64,
+}
+
+/// The air between robot and base station, the base station, and the account of the run.
+pub struct DemoRadio {
+    /// Robot → base station.
+    up: FaultyWriter<ByteLog>,
+    /// Base station → robot (its receiving end is what the robot reads).
+    down: FaultyWriter<Pipe>,
+    base: BaseStation<D>,
+    config: SessionConfig,
+    args: LinkArgs,
+    robot_map: Option<HashMap<VoxelKey, VoxelStats<D>>>,
+    /// Bytes of live-update frames.
+    live_bytes: u64,
+    /// The robot's link counters at the end.
+    robot: Option<RobotAccount>,
+    drained: bool,
+    ticks: u64,
+    /// At the end: agreement with the robot's own map.
+    agreement: Option<(usize, f64)>,
+    decoder: Option<Decoder>,
+    /// At the end: against the f32 reference of all points (argmax, RMS ‖Δμ‖/‖μ‖, voxels).
+    reference: Option<(f64, f64, usize)>,
+    /// The same for the robot's own map (what no link can improve on).
+    robot_reference: Option<(f64, f64, usize)>,
+}
+
+impl DemoRadio {
+    /// A radio with this link; the base station expects `config`'s sessions.
+    pub fn new(config: SessionConfig, args: &LinkArgs) -> anyhow::Result<Arc<Mutex<Self>>> {
+        let faults = args.faults()?;
+        let base = BaseStation::new(config).map_err(|e| anyhow::anyhow!("base station: {e:?}"))?;
+        Ok(Arc::new(Mutex::new(Self {
+            up: FaultyWriter::new(ByteLog::default(), faults, args.link_seed),
+            down: FaultyWriter::new(Pipe::default(), faults, args.link_seed ^ 0xACC),
+            base,
+            config,
+            robot_map: None,
+            args: args.clone(),
+            live_bytes: 0,
+            robot: None,
+            drained: false,
+            ticks: 0,
+            agreement: None,
+            decoder: None,
+            reference: None,
+            robot_reference: None,
+        })))
+    }
+
+    /// Deliver what the air carries this tick, both ways, and move its clocks.
+    fn carry(&mut self, robot: &mut DeviceRobot) {
+        let _ = self.up.advance(TICK_MS);
+        let arrived = std::mem::take(&mut self.up.inner().0);
+        self.base.receive(&arrived);
+        let acks = self.base.take_acks();
+        if !self.args.no_back_channel {
+            use embedded_io::Write;
+            let _ = self.down.write_all(&acks);
+            let _ = self.down.advance(TICK_MS);
+            let _ = robot.poll_acks(self.down.inner());
+        }
+        self.ticks += 1;
+    }
+
+    fn tick_robot(&mut self, robot: &mut DeviceRobot) {
+        let Ok(r) = robot.tick(&mut self.up, BUDGET);
+        self.live_bytes += r.live_bytes as u64;
+        self.carry(robot);
+    }
+
+    fn drain_robot(&mut self, robot: &mut DeviceRobot, tap: &mut dyn FnMut(&Evicted<'_, D>)) {
+        let mut map_done = false;
+        for _ in 0..DRAIN_TICKS {
+            if map_done {
+                self.tick_robot(robot);
+            } else {
+                map_done = robot.drain_tapped(&mut self.up, &mut *tap).is_ok();
+                self.carry(robot);
+            }
+            if map_done && (self.args.no_back_channel || robot.is_drained()) {
+                self.drained = true;
+                break;
+            }
+        }
+        let voxels = robot.map().counters().evicted;
+
+        self.robot = Some(RobotAccount {
+            points: 0.0,
+            voxels,
+            stats: robot.encoder().stats(),
+            resent_bytes: u64::from(robot.encoder().resent_bytes()),
+        });
+    }
+
+    /// Compare the base station's map with the robot's own (every voxel either answers, by argmax).
+    fn compare(&mut self, robot: &ObsMap<D>, decoder: &Decoder) {
+        self.decoder = Some(decoder.clone());
+        if let Some(a) = &mut self.robot {
+            a.points = robot
+                .observed_voxels()
+                .map(|(_, o)| f64::from(o.count))
+                .sum();
+        }
+        let mut m = HashMap::new();
+        robot.for_each_posterior(|k, r| {
+            m.insert(k, *r);
+        });
+        let Some(base) = self.base.map() else { return };
+        let ours: HashMap<VoxelKey, VoxelStats<D>> = base.posteriors().into_iter().collect();
+        let (mut both, mut agree) = (0usize, 0usize);
+        let label = |m: &[f32; D]| decoder.argmax(m).map(|(c, _)| c);
+        for (k, r) in &m {
+            both += 1;
+            agree += usize::from(ours.get(k).map(|b| label(&b.mean)) == Some(label(&r.mean)));
+        }
+        self.agreement = Some((both, agree as f64 / both.max(1) as f64));
+        self.robot_map = Some(m);
+    }
+
+    /// Compare the base station's posteriors with the f32 reference map of all points (sorted `(key,
+    /// posterior)`): argmax agreement and RMS of ‖Δμ‖/‖μ‖ over the reference's voxels (a voxel the base
+    /// station cannot answer counts as a disagreement with ‖Δμ‖ = ‖μ‖).
+    pub fn compare_reference(&mut self, reference: &[(VoxelKey, VoxelStats<D>)]) {
+        let (Some(base), Some(decoder), Some(robot)) =
+            (self.base.map(), &self.decoder, &self.robot_map)
+        else {
+            return;
+        };
+        let ours: HashMap<VoxelKey, VoxelStats<D>> = base.posteriors().into_iter().collect();
+        self.reference = Some(against(&ours, reference, decoder));
+        self.robot_reference = Some(against(robot, reference, decoder));
+    }
+
+    /// The link's account in stable lines: points lost, bytes per integrated point by what they carried,
+    /// and how the base station's map agrees with the robot's and with the f32 reference.
+    pub fn summary(&self) -> String {
+        let s = self.base.stats();
+        let up = self.up.link().log();
+        let down = self.down.link().log();
+        let Some(robot) = self.robot else {
+            return "the robot never drained".into();
+        };
+        let settled: f64 = self.base.map().map_or(0.0, |m| {
+            m.voxels().map(|(_, v)| f64::from(v.settled.count)).sum()
+        });
+        let lost = (robot.points - settled).max(0.0);
+        let per = |b: u64| b as f64 / robot.points.max(1.0);
+        let total = self.up.bytes_in;
+        let finals = total - robot.resent_bytes - self.live_bytes;
+        let channel = if self.args.no_back_channel {
+            "no back channel: what the link loses is lost"
+        } else if self.drained {
+            "back channel: every frame acknowledged, applied once"
+        } else {
+            "back channel, but the run ended before every frame was acknowledged"
+        };
+        let mut out = format!(
+            "points lost on the link: {lost:.0} of {:.0} ({channel}; the base station counted {} frames never received)\n\
+             wire bytes per integrated point: {:.2} (final voxels, headers and statistics: {finals} B sent first + {} B re-sent)\n\
+             wire bytes per integrated point, live updates: {:.2} ({} B)\n\
+             wire bytes per integrated point, acknowledgements (other direction): {:.2} ({} B)\n\
+             summaries sent per global voxel: {:.2} ({} final summaries for {} voxels)\n",
+            robot.points,
+            s.lost,
+            per(finals + robot.resent_bytes),
+            robot.resent_bytes,
+            per(self.live_bytes),
+            self.live_bytes,
+            per(self.down.bytes_in),
+            self.down.bytes_in,
+            f64::from(robot.voxels) / self.base.map().map_or(1, |m| m.len().max(1)) as f64,
+            robot.voxels,
+            self.base.map().map_or(0, |m| m.len()),
+        );
+        if let Some((n, a)) = self.agreement {
+            out += &format!(
+                "base station vs robot map, argmax agreement: {:.2} % of {n} voxels\n",
+                100.0 * a
+            );
+        }
+        if let Some((a, rms, n)) = self.reference {
+            out += &format!(
+                "base station vs f32 reference of all points: argmax {:.2} %, RMS ‖Δμ‖/‖μ‖ {rms:.4} ({n} voxels)\n",
+                100.0 * a
+            );
+        }
+        if let Some((a, rms, _)) = self.robot_reference {
+            out += &format!(
+                "robot's own map vs f32 reference of all points: argmax {:.2} %, RMS ‖Δμ‖/‖μ‖ {rms:.4}\n",
+                100.0 * a
+            );
+        }
+        out += &format!(
+            "link: {} ticks of {TICK_MS} ms; up: {} frames written ({} re-sent), {} dropped, {} truncated, {} delayed, \
+             {} lost to outages; the base station applied {} frames and {} live updates, refused {} damaged runs of \
+             bytes and {} repeated frames; down: {} acknowledgements, {} lost to outages; the robot refused {} \
+             damaged or foreign ones.",
+            self.ticks,
+            up.frames,
+            robot.stats.resent,
+            up.dropped,
+            up.truncated,
+            up.delayed,
+            up.outage_dropped,
+            s.frames,
+            s.updated,
+            s.decoder.refused(),
+            s.rejected.duplicate_frames,
+            down.frames,
+            down.outage_dropped,
+            robot.stats.bad_acks,
+        );
+        out
+    }
+}
+
+/// Argmax agreement and RMS of ‖Δμ‖/‖μ‖ of `got` against the reference's voxels (sorted `(key,
+/// posterior)`); a voxel `got` cannot answer counts as a disagreement with ‖Δμ‖ = ‖μ‖.
+fn against(
+    got: &HashMap<VoxelKey, VoxelStats<D>>,
+    reference: &[(VoxelKey, VoxelStats<D>)],
+    decoder: &Decoder,
+) -> (f64, f64, usize) {
+    let label = |m: &[f32; D]| decoder.argmax(m).map(|(c, _)| c);
+    let (mut agree, mut sq) = (0usize, 0.0f64);
+    for (k, r) in reference {
+        let den: f64 = r.mean.iter().map(|x| f64::from(x * x)).sum();
+        match got.get(k) {
+            Some(b) => {
+                agree += usize::from(label(&b.mean) == label(&r.mean));
+                let num: f64 = b
+                    .mean
+                    .iter()
+                    .zip(&r.mean)
+                    .map(|(x, y)| f64::from((x - y) * (x - y)))
+                    .sum();
+                sq += num / den.max(1e-12);
+            }
+            None => sq += 1.0,
+        }
+    }
+    let n = reference.len().max(1);
+    (agree as f64 / n as f64, (sq / n as f64).sqrt(), n)
+}
+
+/// The demo's radio as the evaluation's [`Radio`] (shared, so the demo reports after the run).
+pub struct DemoRadioLink(pub Arc<Mutex<DemoRadio>>);
+
+impl Radio for DemoRadioLink {
+    fn setup(&self, setup: Setup) -> Setup {
+        let Ok(r) = self.0.lock() else { return setup };
+        let resend = if r.args.no_back_channel {
+            Resend::OFF
+        } else {
+            // A re-send after 5 ticks without acknowledgement: longer than a round trip with the link's
+            // delays, short against an outage.
+            Resend::new(r.args.resend_bytes, 5)
+        };
+        Setup {
+            link: setup.link.with_resend(resend),
+            codec: r.config.codec,
+            ..setup.with_live(LiveUpdates::new(r.args.live_bytes))
+        }
+    }
+    fn tick(&mut self, robot: &mut DeviceRobot) {
+        if let Ok(mut r) = self.0.lock() {
+            r.tick_robot(robot);
+        }
+    }
+    fn drain(&mut self, robot: &mut DeviceRobot, tap: &mut dyn FnMut(&Evicted<'_, D>)) {
+        if let Ok(mut r) = self.0.lock() {
+            r.drain_robot(robot, tap);
+        }
+    }
+    fn finish(&mut self, robot: &ObsMap<D>, decoder: &Decoder) {
+        if let Ok(mut r) = self.0.lock() {
+            r.compare(robot, decoder);
+        }
+    }
+}
