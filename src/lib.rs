@@ -53,7 +53,7 @@
 //! ```
 //!
 //! `examples/robot.rs` is the same loop as a program to copy. The base station side reads the bytes with
-//! [`FrameDecoder`] and [`wire::parse_body`].
+//! [`receiver::Receiver`].
 //!
 //! ## Modules
 //!
@@ -62,8 +62,9 @@
 //! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`]
 //! and [`sampling`] (uncertainty; [`info_gain`]: where to look next) →
 //! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
-//! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder) →
-//! [`mapper`] (all of it as one value). [`f32math`] holds the single-precision elementary functions the
+//! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder,
+//! acknowledgements) → [`mapper`] (all of it as one value); at the other end of the link, [`receiver`] (the
+//! acceptance rules and acknowledgements). [`f32math`] holds the single-precision elementary functions the
 //! device path uses.
 #![no_std]
 #![deny(missing_docs)]

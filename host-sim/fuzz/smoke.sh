@@ -8,7 +8,7 @@ if ! command -v cargo-fuzz >/dev/null 2>&1; then
   cargo install cargo-fuzz --locked
 fi
 rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
-for target in frame_decoder roundtrip map_integrate base_station_db; do
+for target in frame_decoder roundtrip map_integrate base_station_db ack_reader; do
   echo "--- fuzz $target (${SECONDS_PER_TARGET} s)"
   cargo +nightly fuzz run --fuzz-dir host-sim/fuzz "$target" -- \
     -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb=2048

@@ -54,11 +54,11 @@ fn run(codec: SummaryCodec, paths: &[Vec<(f32, f32)>], budget: usize) -> Run {
     for (i, r) in robots.iter_mut().enumerate() {
         r.finish();
         assert_eq!(
-            r.map.rejections().total(),
+            r.map().rejections().total(),
             0,
             "the robot dropped points ({:?}, {:?}): the test would be meaningless",
-            r.map.rejections(),
-            r.map.counters()
+            r.map().rejections(),
+            r.map().counters()
         );
         feed_chunked(&mut base, &r.uart.0, i as u64);
     }

@@ -28,11 +28,13 @@
 use latentbki::batch::RejectionCounts;
 use latentbki::config::{ConfigError, KernelMode, MapConfig, Prior};
 use latentbki::f32math::sin_cos;
-use latentbki::frame::EncoderSettings;
+use latentbki::frame::{EncoderSettings, Resend};
 use latentbki::local_map::{Counters, LocalMap};
 use latentbki::mapper::{DrainError, Mapper, Setup, SetupError};
 use latentbki::nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 use latentbki::wire::LinkStats;
+
+pub mod loopback;
 
 /// Number of categories in the room (and vectors in the codebook).
 pub const CATEGORIES: usize = 6;
@@ -501,6 +503,8 @@ pub const SELF_TEST_CAPACITY: usize =
     SELF_TEST_MAP_BUDGET / LocalMap::<64, 1, { latentbki::quant::packed_len(64) }>::BYTES_PER_VOXEL;
 /// Bytes of the encoder's queue of evicted voxels.
 pub const SELF_TEST_QUEUE_BYTES: usize = 4096;
+/// Of the queue budget: bytes that keep frames until the loopback acknowledges them.
+pub const SELF_TEST_RESEND_BYTES: usize = 2048;
 /// Largest frame on the wire.
 pub const SELF_TEST_FRAME_BYTES: usize = 512;
 
@@ -555,12 +559,14 @@ impl Scenario {
     }
 
     /// The mapper's setup: this map, robot [`SELF_TEST_ROBOT`] with the scenario's session, default codec,
-    /// no PCA.
+    /// no PCA, and a back channel (half the queue budget keeps unacknowledged frames; [`run`] loops the
+    /// acknowledgements back).
     pub fn setup(&self) -> Result<Setup, ConfigError> {
         Ok(Setup::new(
             self.map_config()?,
             self.window_radius,
-            EncoderSettings::new(SELF_TEST_ROBOT, self.session),
+            EncoderSettings::new(SELF_TEST_ROBOT, self.session)
+                .with_resend(Resend::new(SELF_TEST_RESEND_BYTES as u32, 4)),
         ))
     }
 
@@ -631,6 +637,8 @@ where
         return Err(RunError::NotConfigured);
     }
     let mut report = RunReport::default();
+    // The frames go to the UART and, through the core's receiver, come back acknowledged.
+    let mut link = loopback::Loopback::<W, D, N>::new(w);
     for frame in 0..scenario.frames {
         let f = integrate_frame(&scenario.scene, frame, mapper, chunk, probe);
         report.points += f.points;
@@ -638,13 +646,28 @@ where
         report.peak_voxels = report.peak_voxels.max(mapper.map().len() as u32);
         on_frame(frame, &f, mapper.map());
         mapper
-            .tick(w, scenario.tick_budget)
+            .tick(&mut link, scenario.tick_budget)
             .map_err(|latentbki::frame::TickError::Write(e, _)| RunError::Write(e))?;
+        mapper.poll_acks(&mut link).map_err(RunError::Write)?;
     }
-    report.flushed = mapper.drain(w).map_err(|e| match e {
-        DrainError::Write(e) => RunError::Write(e),
-        DrainError::Stuck => RunError::Stuck,
-    })?;
+    // Drain: a full re-send buffer waits for acknowledgements, which the loopback has ready at once.
+    let before = mapper.map().counters().evicted;
+    loop {
+        match mapper.drain(&mut link) {
+            Ok(_) => break,
+            Err(DrainError::Write(e)) => return Err(RunError::Write(e)),
+            Err(DrainError::Stuck) => {
+                if mapper.poll_acks(&mut link).map_err(RunError::Write)? == 0 {
+                    return Err(RunError::Stuck);
+                }
+            }
+        }
+    }
+    mapper.poll_acks(&mut link).map_err(RunError::Write)?;
+    if !mapper.is_drained() {
+        return Err(RunError::Stuck);
+    }
+    report.flushed = mapper.map().counters().evicted.wrapping_sub(before);
     report.rejections = mapper.map().rejections();
     report.counters = mapper.map().counters();
     report.link = mapper.encoder().stats();

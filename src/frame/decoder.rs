@@ -113,7 +113,7 @@ impl<const N: usize> FrameDecoder<N> {
                 }
                 continue;
             }
-            let rest = &input[i + 1..];
+            let rest = input.get(i + 1..).unwrap_or_default();
             let n = core::mem::take(&mut self.len);
             if core::mem::take(&mut self.overflow) {
                 self.stats.overflows = self.stats.overflows.saturating_add(1);
@@ -125,8 +125,9 @@ impl<const N: usize> FrameDecoder<N> {
             if n == 0 {
                 continue; // empty frame: back-to-back delimiters
             }
-            let error = match cobs::decode_in_place(&mut self.buf[..n]) {
-                Err(_) => {
+            let run = self.buf.get_mut(..n).unwrap_or_default();
+            let error = match cobs_decode_in_place(run).ok_or(()) {
+                Err(()) => {
                     self.stats.cobs_errors = self.stats.cobs_errors.saturating_add(1);
                     FrameError::Cobs
                 }
@@ -135,8 +136,12 @@ impl<const N: usize> FrameDecoder<N> {
                     FrameError::TooShort
                 }
                 Ok(m) => {
-                    let (body, crc) = self.buf[..m].split_at(m - 4);
-                    if CRC32.checksum(body).to_le_bytes() == crc {
+                    let checked = self
+                        .buf
+                        .get(..m)
+                        .and_then(|f| f.split_at_checked(m - 4))
+                        .filter(|(body, crc)| CRC32.checksum(body).to_le_bytes() == **crc);
+                    if let Some((body, _)) = checked {
                         self.stats.frames = self.stats.frames.saturating_add(1);
                         return Feed::Frame { body, rest };
                     }
@@ -148,4 +153,33 @@ impl<const N: usize> FrameDecoder<N> {
         }
         Feed::NeedMore
     }
+}
+
+/// COBS-decode `buf` in place (no delimiters in it); returns the decoded length, or `None` if it is not
+/// valid COBS (a zero byte, or a group longer than the input). The `cobs` crate encodes; decoding is
+/// written here with checked indexing only, because the robot decodes acknowledgements on a path the
+/// firmware's `panic-never` build proves free of panics, and the crate's decoder keeps bounds checks.
+fn cobs_decode_in_place(buf: &mut [u8]) -> Option<usize> {
+    let (mut read, mut write) = (0usize, 0usize);
+    while read < buf.len() {
+        let code = *buf.get(read)?;
+        if code == 0 {
+            return None;
+        }
+        read += 1;
+        for _ in 1..code {
+            let b = *buf.get(read)?;
+            if b == 0 {
+                return None;
+            }
+            *buf.get_mut(write)? = b;
+            read += 1;
+            write += 1;
+        }
+        if code != 0xFF && read < buf.len() {
+            *buf.get_mut(write)? = 0;
+            write += 1;
+        }
+    }
+    Some(write)
 }

@@ -12,9 +12,12 @@
 //! by losing evicted voxels. It writes whole frames through [`embedded_io::Write`], so any HAL's UART works.
 //!
 //! The receiving side is [`FrameDecoder`] (bytes in arbitrary chunks → checked frame bodies) and
-//! [`SeqTracker`] (lost, duplicate and late frames of one session).
+//! [`SeqTracker`] (lost, duplicate and late frames of one session); [`crate::receiver`] applies the whole
+//! acceptance rule with them. With a back channel (protocol 3) the receiver acknowledges ([`Ack`]), and the
+//! encoder keeps every frame until acknowledged and re-sends it when it is overdue.
 //!
-//! Submodules: [`encoder`] (the sending side and its queue), [`decoder`] (bytes → checked frame bodies),
+//! Submodules: [`encoder`] (the sending side and its queue), `resend` (the kept frames), [`ack`]
+//! (acknowledgements and the robot's non-blocking reader), [`decoder`] (bytes → checked frame bodies),
 //! [`seq`] (sequence numbers of a session).
 
 pub mod ack;

@@ -33,11 +33,7 @@ fn obs(i: i32) -> ObsStats<D> {
 type Outcome = Result<(u32, Option<Ack>), (Refusal, Option<Ack>)>;
 
 /// Every frame the receiver accepts or refuses, in order.
-fn run(
-    rx: &mut Receiver<D, 512>,
-    sessions: &mut impl SessionTable,
-    bytes: &[u8],
-) -> Vec<Outcome> {
+fn run(rx: &mut Receiver<D, 512>, sessions: &mut impl SessionTable, bytes: &[u8]) -> Vec<Outcome> {
     let mut out = Vec::new();
     let mut input = bytes;
     loop {

@@ -386,7 +386,7 @@ pub fn decode_codes<const D: usize>(
         .ok_or(WireError::Truncated)?;
     let bits = codec.bits_for(n) as usize;
     let levels = 1u32 << bits;
-    let scale = log_value(bytes[0], SCALE_OFFSET);
+    let scale = log_value(bytes.first().copied().unwrap_or(0), SCALE_OFFSET);
     let mut t = [0.0f32; D];
     if scale > 0.0 {
         let half = (levels / 2) as f32;
@@ -394,7 +394,8 @@ pub fn decode_codes<const D: usize>(
         for v in t.iter_mut() {
             let mut q = 0u32;
             for k in 0..bits {
-                q |= u32::from(bytes[(bit + k) / 8] >> ((bit + k) % 8) & 1) << k;
+                let byte = bytes.get((bit + k) / 8).copied().unwrap_or(0);
+                q |= u32::from(byte >> ((bit + k) % 8) & 1) << k;
             }
             *v = scale * ((q as f32 + 0.5) / half - 1.0);
             bit += bits;
@@ -407,9 +408,12 @@ pub fn decode_codes<const D: usize>(
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
     if psi_max > 0.0 {
         for b in 0..blocks.get() {
-            let c = bytes[psi_at + 1 + b / 2] >> (4 * (b % 2)) & 0x0f;
+            let c = bytes.get(psi_at + 1 + b / 2).copied().unwrap_or(0) >> (4 * (b % 2)) & 0x0f;
             let v = psi_max * f32math::pow2_steps(-i32::from(c), BLOCK_STEPS_PER_OCTAVE);
-            for p in &mut scatter[block_range(D, blocks, b)] {
+            for p in scatter
+                .get_mut(block_range(D, blocks, b))
+                .unwrap_or_default()
+            {
                 *p = v;
             }
         }

@@ -36,6 +36,7 @@ fuzz_target!(|data: &[u8]| {
     let codec = SummaryCodec {
         mean_bits: 3,
         psi_blocks: 4,
+        mean_bits_growth: 2,
     };
     let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
     let settings = EncoderSettings::new(1 + u16::from(ctl % 3), 7);

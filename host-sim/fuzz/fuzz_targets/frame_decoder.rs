@@ -25,6 +25,7 @@ fuzz_target!(|data: &[u8]| {
                             SummaryCodec {
                                 mean_bits: 8,
                                 psi_blocks: 64,
+                                mean_bits_growth: 0,
                             },
                         ] {
                             for s in batch.iter::<64>(codec) {

@@ -30,6 +30,7 @@ fuzz_target!(|data: &[u8]| {
     let codec = SummaryCodec {
         mean_bits: 2 + data[0] % 7,
         psi_blocks: 1 + data[1] % D as u8,
+        mean_bits_growth: data[0] / 7 % 4,
     };
     let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
     let mut enc = FrameEncoder::<D, 2048, 256>::new(config, EncoderSettings::new(1, 1)).unwrap();

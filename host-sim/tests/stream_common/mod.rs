@@ -1,16 +1,18 @@
 //! Shared by the streaming tests: a labelled outdoor scene, real text embeddings folded through a PCA of
-//! them, and robots that map with the on-device `LocalMap` and stream through a `FrameEncoder`.
+//! them, and robots that run the firmware's own `Mapper` (map, encoder, live updates), with a tap on what
+//! they hand to the link.
 #![allow(dead_code)]
 
 use host_sim::base_station::{BaseStation, VOCAB_CAP};
 use host_sim::link::{ByteLog, SplitMix};
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::frame::EncoderSettings;
+use latentbki::mapper::LiveUpdates;
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{feature_space_id, SessionConfig, SummaryCodec};
 use latentbki::{
-    packed_len, Codebook, Evicted, EvictionSink, FrameEncoder, LocalMap, MapConfig, ObsStats, Pca,
-    SinkFull, VoxelKey, VoxelStats,
+    packed_len, Codebook, Evicted, FrameEncoder, LocalMap, MapConfig, Mapper, ObsStats, Pca, Setup,
+    VoxelKey, VoxelStats,
 };
 
 pub const D: usize = 64;
@@ -21,7 +23,7 @@ pub const CAP: usize = 12_000;
 pub const QB: usize = 16 * 1024;
 pub const N: usize = 512;
 pub type Encoder = FrameEncoder<D, QB, N>;
-pub type Robot = LocalMap<D, CAP, P>;
+pub type Robot = Mapper<D, CAP, P, QB, N>;
 
 /// The 12 ASPRS class phrases and their 384-d embeddings (host-sim/data/text-embeddings.tsv).
 pub fn embeddings() -> (Vec<String>, Vec<[f32; F]>) {
@@ -170,52 +172,43 @@ pub fn gauss(rng: &mut SplitMix) -> f32 {
     ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32
 }
 
-/// Records what the robot evicted (its own map's view of each voxel) and forwards it to the encoder.
-pub struct Recording<'a> {
-    pub encoder: &'a mut Encoder,
-    pub evicted: &'a mut Vec<(VoxelKey, u32, ObsStats<D>)>,
-}
-
-impl EvictionSink<D> for Recording<'_> {
-    fn evict(&mut self, v: Evicted<'_, D>) -> Result<(), SinkFull> {
-        self.encoder.evict(v)?;
-        self.evicted.push((v.key, v.residency, *v.obs));
-        Ok(())
-    }
-}
-
-/// A robot: its local map, its encoder, its UART and what it evicted.
+/// A robot: the firmware's `Mapper`, its UART, and what it handed to the link (tapped).
 pub struct RobotRig {
-    pub map: Box<Robot>,
-    pub encoder: Box<Encoder>,
+    pub robot: Box<Robot>,
     pub uart: ByteLog,
     pub evicted: Vec<(VoxelKey, u32, ObsStats<D>)>,
     pub live_sent: u64,
 }
 
 impl RobotRig {
+    /// A robot with live updates using whatever its ticks' budgets leave.
     pub fn new(world: &World, robot: u16, window: f32) -> Self {
-        let mut map = Box::new(Robot::EMPTY);
-        map.configure(world.config.map_config().unwrap(), window)
-            .unwrap();
-        let encoder = Box::new(
-            Encoder::new(
-                world.config,
+        let mut r = Box::new(Robot::EMPTY);
+        let setup = Setup {
+            codec: world.config.codec,
+            feature_space: world.config.feature_space,
+            ..Setup::new(
+                world.config.map_config().unwrap(),
+                window,
                 EncoderSettings::new(robot, 1000 + u32::from(robot)),
             )
-            .unwrap(),
-        );
+            .with_live(LiveUpdates::new(u32::MAX))
+        };
+        r.configure(&setup).unwrap();
+        assert_eq!(r.encoder().config(), &world.config);
         Self {
-            map,
-            encoder,
+            robot: r,
             uart: ByteLog::default(),
             evicted: Vec::new(),
             live_sent: 0,
         }
     }
 
-    /// Integrate one scan, then spend `budget` bytes: evicted voxels first, then the hot (being observed)
-    /// ones as live updates.
+    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+        self.robot.map()
+    }
+
+    /// Integrate one scan, then spend `budget` bytes: evicted voxels first, then live updates.
     pub fn step(
         &mut self,
         pose: &Isometry3<f32>,
@@ -223,44 +216,27 @@ impl RobotRig {
         feats: &[[f32; D]],
         budget: usize,
     ) {
-        let mut sink = Recording {
-            encoder: &mut self.encoder,
-            evicted: &mut self.evicted,
-        };
-        self.map.integrate(pose, pts, feats, &mut sink);
+        let evicted = &mut self.evicted;
+        self.robot
+            .integrate_tapped(pose, pts, feats, |v: &Evicted<'_, D>| {
+                evicted.push((v.key, v.residency, *v.obs))
+            });
         self.tick(budget);
     }
 
     pub fn tick(&mut self, budget: usize) {
-        let hot: Vec<_> = self.map.hot_voxels().collect();
-        let report = self
-            .encoder
-            .tick(
-                &mut self.uart,
-                budget,
-                hot.iter()
-                    .map(|v| latentbki::frame::live(v.key, &v.obs, v.residency)),
-            )
-            .unwrap();
+        let report = self.robot.tick(&mut self.uart, budget).unwrap();
         self.live_sent += u64::from(report.live_sent);
     }
 
-    /// End of run: evict everything and drain the queue.
+    /// End of run: evict everything and send it all.
     pub fn finish(&mut self) {
-        loop {
-            let mut sink = Recording {
-                encoder: &mut self.encoder,
-                evicted: &mut self.evicted,
-            };
-            let done = self.map.flush(&mut sink).is_ok();
-            self.encoder
-                .tick(&mut self.uart, usize::MAX, core::iter::empty())
-                .unwrap();
-            if done && self.encoder.queued() == 0 {
-                break;
-            }
-        }
-        self.encoder.send_stats(&mut self.uart).unwrap();
+        let evicted = &mut self.evicted;
+        self.robot
+            .drain_tapped(&mut self.uart, |v: &Evicted<'_, D>| {
+                evicted.push((v.key, v.residency, *v.obs))
+            })
+            .unwrap();
     }
 }
 
