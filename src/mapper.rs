@@ -13,8 +13,8 @@
 //! returns.
 //!
 //! With a back channel ([`crate::frame::Resend`]) the robot keeps what it sent until the base station
-//! acknowledges it; [`Mapper::poll_acks`] reads acknowledgements without blocking. With live updates on
-//! ([`LiveUpdates`]) each tick also streams the held voxels that changed since they were last streamed, so
+//! acknowledges it; [`Mapper::poll_acks`] reads acknowledgements without blocking. With live updates
+//! ([`Mapper::tick_live`]) each tick also streams the held voxels that changed since they were last streamed, so
 //! the base station's map follows the robot while it works. A program that needs every eviction's exact
 //! statistics (an evaluation, a log) taps them ([`EvictionTap`]) instead of assembling a second robot.
 
@@ -29,7 +29,7 @@ use nalgebra::Isometry3;
 
 mod tap;
 use tap::Tapped;
-pub use tap::{EvictionTap, LiveUpdates, NoTap};
+pub use tap::{EvictionTap, NoTap};
 
 /// Everything a [`Mapper`] is configured with; `const`-constructible, so a firmware keeps it in a `static`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -45,8 +45,6 @@ pub struct Setup {
     /// Id of the PCA the features were compressed with ([`crate::wire::feature_space_id`]), or
     /// [`NO_FEATURE_SPACE`].
     pub feature_space: u32,
-    /// Streaming held voxels as they change (off: only final voxels, at eviction).
-    pub live: LiveUpdates,
 }
 
 impl Setup {
@@ -58,13 +56,7 @@ impl Setup {
             link,
             codec: SummaryCodec::DEFAULT,
             feature_space: NO_FEATURE_SPACE,
-            live: LiveUpdates::OFF,
         }
-    }
-
-    /// The same with live updates.
-    pub const fn with_live(self, live: LiveUpdates) -> Self {
-        Self { live, ..self }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.
@@ -112,10 +104,8 @@ pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: us
     map: LocalMap<D, CAP, P>,
     encoder: FrameEncoder<D, QB, N>,
     acks: AckReader,
-    live: LiveUpdates,
     /// Where the next live round starts (a slot of the map).
     live_hand: usize,
-    ticks: u32,
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
@@ -128,9 +118,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         map: LocalMap::EMPTY,
         encoder: FrameEncoder::EMPTY,
         acks: AckReader::new(),
-        live: LiveUpdates::OFF,
         live_hand: 0,
-        ticks: 0,
     };
 
     /// (Re)configure in place: clears the map and starts a new session on the link (the next tick begins
@@ -138,9 +126,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     pub fn configure(&mut self, setup: &Setup) -> Result<(), SetupError> {
         self.encoder.close();
         self.acks.reset();
-        self.live = setup.live;
         self.live_hand = 0;
-        self.ticks = 0;
         self.map
             .configure(setup.map, setup.window_radius)
             .map_err(SetupError::Map)?;
@@ -197,24 +183,31 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     }
 
     /// Spend up to `budget` bytes on the link: overdue re-sends (with a back channel), the session header
-    /// when due, the evicted voxels (oldest first), then — with live updates on — the held voxels that
-    /// changed since they were last streamed. Only whole frames are written.
+    /// when due, then the evicted voxels (oldest first). Only whole frames are written.
     pub fn tick<W: embedded_io::Write>(
         &mut self,
         w: &mut W,
         budget: usize,
     ) -> Result<TickReport, TickError<W::Error>> {
-        self.ticks = self.ticks.wrapping_add(1);
-        let live_on = self.live.bytes_per_tick > 0
-            && self.ticks.is_multiple_of(self.live.every_ticks.max(1))
-            && !self.map.is_empty();
-        if !live_on {
-            return self
-                .encoder
-                .tick(w, budget, core::iter::empty::<Evicted<'_, D>>());
+        self.encoder
+            .tick(w, budget, core::iter::empty::<Evicted<'_, D>>())
+    }
+
+    /// [`Self::tick`], then live updates: up to `live_budget` of the `budget` bytes stream the held voxels
+    /// that changed since they were last streamed, in ring order over the map's slots (each gets its
+    /// turn), so a base station's map follows the robot while it works. The base station replaces a live
+    /// copy by the next one and by the final one. (A firmware that wants only final voxels calls
+    /// [`Self::tick`], and links none of this.)
+    pub fn tick_live<W: embedded_io::Write>(
+        &mut self,
+        w: &mut W,
+        budget: usize,
+        live_budget: usize,
+    ) -> Result<TickReport, TickError<W::Error>> {
+        if live_budget == 0 || self.map.is_empty() {
+            return self.tick(w, budget);
         }
         let hand = self.live_hand;
-        let live_budget = self.live.bytes_per_tick as usize;
         let report = self
             .encoder
             .tick_live(w, budget, live_budget, self.map.changed_voxels(hand));

@@ -13,7 +13,6 @@ use crate::link::{ByteLog, Faults, FaultyWriter, Pipe};
 use crate::ObsMap;
 use clap::Args;
 use latentbki::frame::Resend;
-use latentbki::mapper::LiveUpdates;
 use latentbki::wire::SessionConfig;
 use latentbki::{Evicted, Setup, VoxelKey, VoxelStats};
 use std::collections::HashMap;
@@ -164,7 +163,7 @@ impl DemoRadio {
     }
 
     fn tick_robot(&mut self, robot: &mut DeviceRobot) {
-        let Ok(r) = robot.tick(&mut self.up, BUDGET);
+        let Ok(r) = robot.tick_live(&mut self.up, BUDGET, self.args.live_bytes as usize);
         self.live_bytes += r.live_bytes as u64;
         self.carry(robot);
     }
@@ -360,7 +359,7 @@ impl Radio for DemoRadioLink {
         Setup {
             link: setup.link.with_resend(resend),
             codec: r.config.codec,
-            ..setup.with_live(LiveUpdates::new(r.args.live_bytes))
+            ..setup
         }
     }
     fn tick(&mut self, robot: &mut DeviceRobot) {

@@ -8,7 +8,6 @@ mod stream_common;
 use host_sim::base_station::BaseStation;
 use host_sim::link::{ByteLog, Faults, FaultyWriter, Pipe, SplitMix};
 use latentbki::frame::{EncoderSettings, Resend};
-use latentbki::mapper::LiveUpdates;
 use latentbki::{Evicted, Setup};
 use stream_common::*;
 
@@ -46,7 +45,6 @@ fn run(faults: Faults, back_channel: bool) -> Outcome {
             2.5,
             EncoderSettings::new(1, 77).with_resend(resend),
         )
-        .with_live(LiveUpdates::new(1500))
     };
     let mut robot = Box::new(Robot::EMPTY);
     robot.configure(&setup).unwrap();
@@ -77,7 +75,7 @@ fn run(faults: Faults, back_channel: bool) -> Outcome {
         robot.integrate_tapped(&pose, &pts, &feats, |v: &Evicted<'_, D>| {
             sent += f64::from(v.obs.count)
         });
-        robot.tick(&mut up, BUDGET).unwrap();
+        robot.tick_live(&mut up, BUDGET, 1500).unwrap();
         peak_unacked = peak_unacked.max(robot.encoder().unacknowledged());
         carry(&mut robot, &mut base, &mut up);
     }

@@ -638,7 +638,7 @@ where
     }
     let mut report = RunReport::default();
     // The frames go to the UART and, through the core's receiver, come back acknowledged.
-    let mut link = loopback::Loopback::<W, D, N>::new(w);
+    let mut link = loopback::Loopback::<W, N>::new(w);
     for frame in 0..scenario.frames {
         let f = integrate_frame(&scenario.scene, frame, mapper, chunk, probe);
         report.points += f.points;

@@ -143,10 +143,11 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     scratch: [u8; N],
     body: [u8; N],
     stats: LinkStats,
-    /// Frames sent and not yet acknowledged, in `queue[resend_at..]`.
+    /// Frames sent and not yet acknowledged, in the last `resend_len` bytes of `queue`.
     ring: Ring,
-    /// Where the re-send region starts in `queue` (= `QB` without a back channel).
-    resend_at: usize,
+    /// Bytes at the end of `queue` that hold kept frames (0 without a back channel, so that
+    /// [`Self::EMPTY`] stays all zero).
+    resend_len: usize,
     /// Ticks so far (the re-send clock).
     now: u32,
     /// Bytes written again, wrapping.
@@ -220,7 +221,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         body: [0; N],
         stats: LinkStats::ZERO,
         ring: Ring::EMPTY,
-        resend_at: QB,
+        resend_len: 0,
         now: 0,
         resent_bytes: 0,
     };
@@ -254,7 +255,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.capacity = 0;
         self.stats = LinkStats::ZERO;
         self.ring = Ring::EMPTY;
-        self.resend_at = QB;
+        self.resend_len = 0;
         self.now = 0;
         self.resent_bytes = 0;
         config.validate(D)?;
@@ -268,7 +269,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         if capacity == 0 || one > N || wire_len(64) > N {
             return Err(WireError::BufferFull);
         }
-        self.resend_at = QB - resend;
+        self.resend_len = resend;
         self.config = config;
         self.config_id = config.id();
         self.entry_len = entry_len;
@@ -335,7 +336,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             self.stats.bad_acks = self.stats.bad_acks.saturating_add(1);
             return 0;
         }
-        let region = self.queue.get_mut(self.resend_at..).unwrap_or_default();
+        let region = self
+            .queue
+            .get_mut(QB - self.resend_len..)
+            .unwrap_or_default();
         let n = self.ring.ack(region, ack.highest, ack.received);
         self.stats.acked = self.stats.acked.wrapping_add(n);
         n
@@ -350,7 +354,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// the re-send buffer can keep it and the oldest unacknowledged frame stays within the receiver's
     /// sequence window.
     fn can_keep(&self, n: usize) -> bool {
-        let region = self.queue.get(self.resend_at..).unwrap_or_default();
+        let region = self.queue.get(QB - self.resend_len..).unwrap_or_default();
         self.in_window() && (!self.settings.resend.is_on() || self.ring.fits(region.len(), n))
     }
 
@@ -358,7 +362,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// must stay within the receiver's 64-frame sequence window of the newest, or its re-sent copy would
     /// arrive too old to be applied.
     fn in_window(&self) -> bool {
-        let region = self.queue.get(self.resend_at..).unwrap_or_default();
+        let region = self.queue.get(QB - self.resend_len..).unwrap_or_default();
         !self.settings.resend.is_on()
             || self
                 .ring
@@ -447,7 +451,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                 self.stats.frames_sent = self.stats.frames_sent.wrapping_add(1);
                 self.stats.bytes_sent = self.stats.bytes_sent.wrapping_add(n as u32);
                 if kept && self.settings.resend.is_on() {
-                    let region = self.queue.get_mut(self.resend_at..).unwrap_or_default();
+                    let region = self
+                        .queue
+                        .get_mut(QB - self.resend_len..)
+                        .unwrap_or_default();
                     self.ring.push(region, seq, self.now, frame);
                 }
                 Ok(())
@@ -516,7 +523,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     ) -> Result<(), TickError<W::Error>> {
         let timeout = self.settings.resend.timeout_ticks.max(1);
         loop {
-            let region = self.queue.get(self.resend_at..).unwrap_or_default();
+            let region = self.queue.get(QB - self.resend_len..).unwrap_or_default();
             let Some((at, record)) = self.ring.due(region, self.now, timeout) else {
                 return Ok(());
             };
@@ -527,7 +534,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             let n = frame.len();
             w.write_all(frame)
                 .map_err(|e| TickError::Write(e, *report))?;
-            let region = self.queue.get_mut(self.resend_at..).unwrap_or_default();
+            let region = self
+                .queue
+                .get_mut(QB - self.resend_len..)
+                .unwrap_or_default();
             self.ring.resent(region, at, self.now);
             report.frames += 1;
             report.bytes += n;

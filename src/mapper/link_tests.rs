@@ -37,13 +37,12 @@ impl embedded_io::ReadReady for BackChannel {
     }
 }
 
-fn setup(resend: Resend, live: LiveUpdates) -> Setup {
+fn setup(resend: Resend) -> Setup {
     Setup::new(
         MapConfig::DEFAULT,
         1.0,
         EncoderSettings::new(2, 3).with_resend(resend),
     )
-    .with_live(live)
 }
 
 /// 100 points on a strip beside `x`.
@@ -107,9 +106,7 @@ impl Station {
 #[test]
 fn the_tap_sees_every_voxel_handed_to_the_link() {
     let mut robot = Box::new(Robot::EMPTY);
-    robot
-        .configure(&setup(Resend::OFF, LiveUpdates::OFF))
-        .unwrap();
+    robot.configure(&setup(Resend::OFF)).unwrap();
     let (mut tapped, mut voxels) = (0.0f32, 0u32);
     let mut tap = |v: &Evicted<'_, D>| {
         tapped += v.obs.count;
@@ -130,9 +127,7 @@ fn the_tap_sees_every_voxel_handed_to_the_link() {
 #[test]
 fn live_updates_show_held_voxels_and_finals_carry_every_point() {
     let mut robot = Box::new(Robot::EMPTY);
-    robot
-        .configure(&setup(Resend::OFF, LiveUpdates::new(400)))
-        .unwrap();
+    robot.configure(&setup(Resend::OFF)).unwrap();
     let mut station = Station::new();
     let mut back = BackChannel::default();
     // The robot stays put: nothing is evicted, so only live updates can show the map.
@@ -140,7 +135,7 @@ fn live_updates_show_held_voxels_and_finals_carry_every_point() {
         let (pose, points, features) = sensor_frame(0.0);
         robot.integrate(&pose, &points, &features);
         let mut out = Vec::new();
-        let r = robot.tick(&mut out, 2000).unwrap();
+        let r = robot.tick_live(&mut out, 2000, 400).unwrap();
         assert!(r.live_bytes <= 400, "{r:?}");
         station.receive(&out, &mut back);
     }
@@ -154,10 +149,10 @@ fn live_updates_show_held_voxels_and_finals_carry_every_point() {
     // Nothing changed since: a quiet tick streams nothing.
     let mut out = Vec::new();
     while robot.map().changed_voxels(0).next().is_some() {
-        robot.tick(&mut out, 2000).unwrap();
+        robot.tick_live(&mut out, 2000, 400).unwrap();
     }
     let mut quiet = Vec::new();
-    assert_eq!(robot.tick(&mut quiet, 2000).unwrap().live_sent, 0);
+    assert_eq!(robot.tick_live(&mut quiet, 2000, 400).unwrap().live_sent, 0);
     let mut out = Vec::new();
     robot.drain(&mut out).unwrap();
     station.receive(&out, &mut back);
@@ -167,9 +162,7 @@ fn live_updates_show_held_voxels_and_finals_carry_every_point() {
 #[test]
 fn with_acknowledgements_nothing_is_lost_on_a_lossy_link() {
     let mut robot = Box::new(Robot::EMPTY);
-    robot
-        .configure(&setup(Resend::new(2048, 3), LiveUpdates::new(300)))
-        .unwrap();
+    robot.configure(&setup(Resend::new(2048, 3))).unwrap();
     let mut station = Station::new();
     let mut back = BackChannel::default();
     let mut frames = 0u32;
@@ -187,7 +180,7 @@ fn with_acknowledgements_nothing_is_lost_on_a_lossy_link() {
         let (pose, points, features) = sensor_frame(f as f32 * 0.4);
         robot.integrate(&pose, &points, &features);
         let mut out = Vec::new();
-        robot.tick(&mut out, 1500).unwrap();
+        robot.tick_live(&mut out, 1500, 300).unwrap();
         deliver(&out, &mut station, &mut back);
         robot.poll_acks(&mut back).unwrap();
     }

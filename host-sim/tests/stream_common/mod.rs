@@ -7,7 +7,6 @@ use host_sim::base_station::{BaseStation, VOCAB_CAP};
 use host_sim::link::{ByteLog, SplitMix};
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::frame::EncoderSettings;
-use latentbki::mapper::LiveUpdates;
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{feature_space_id, SessionConfig, SummaryCodec};
 use latentbki::{
@@ -181,7 +180,6 @@ pub struct RobotRig {
 }
 
 impl RobotRig {
-    /// A robot with live updates using whatever its ticks' budgets leave.
     pub fn new(world: &World, robot: u16, window: f32) -> Self {
         let mut r = Box::new(Robot::EMPTY);
         let setup = Setup {
@@ -192,7 +190,6 @@ impl RobotRig {
                 window,
                 EncoderSettings::new(robot, 1000 + u32::from(robot)),
             )
-            .with_live(LiveUpdates::new(u32::MAX))
         };
         r.configure(&setup).unwrap();
         assert_eq!(r.encoder().config(), &world.config);
@@ -225,7 +222,11 @@ impl RobotRig {
     }
 
     pub fn tick(&mut self, budget: usize) {
-        let report = self.robot.tick(&mut self.uart, budget).unwrap();
+        // Live updates use whatever the final voxels leave.
+        let report = self
+            .robot
+            .tick_live(&mut self.uart, budget, budget)
+            .unwrap();
         self.live_sent += u64::from(report.live_sent);
     }
 
