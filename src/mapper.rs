@@ -205,6 +205,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     pub fn encoder(&self) -> &FrameEncoder<D, QB, N> {
         &self.encoder
     }
+    /// The information-gain score of a candidate view against the voxels held now
+    /// ([`crate::info_gain::view_score`]: `hits` sorted by key, each with its expected point count).
+    pub fn view_score(
+        &self,
+        hits: &[(crate::key::VoxelKey, f32)],
+    ) -> Result<f32, crate::info_gain::ScoreError> {
+        let (lut, prior) = (self.map.kernel(), self.map.prior());
+        crate::info_gain::view_score(lut, &self.map, prior.lambda, hits)
+    }
 }
 
 /// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose.
