@@ -16,7 +16,7 @@ use crate::batch::Rejection;
 use crate::config::{ConfigError, MapConfig};
 use crate::frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
 use crate::key::to_map_frame;
-use crate::local_map::LocalMap;
+use crate::local_map::{LocalMap, HOT_VOXELS};
 use crate::sink::Evicted;
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 use nalgebra::Isometry3;
@@ -101,14 +101,26 @@ impl<E> From<TickError<E>> for DrainError<E> {
 /// and frames of at most `N` bytes. `P` is [`crate::quant::packed_len`]`(D)` (checked at compile time).
 ///
 /// Large (≈ `CAP` × [`LocalMap::BYTES_PER_VOXEL`] + `QB` + 2 `N` bytes): place it in a `static`.
-pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-{
-    map: LocalMap<D, CAP, P>,
+pub struct Mapper<
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const QB: usize,
+    const N: usize,
+    const H: usize = HOT_VOXELS,
+> {
+    map: LocalMap<D, CAP, P, H>,
     encoder: FrameEncoder<D, QB, N>,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    Mapper<D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    > Mapper<D, CAP, P, QB, N, H>
 {
     /// Unconfigured and all zero (a `static` of it lives in `.bss`): it takes no point and sends nothing
     /// until [`Self::configure`].
@@ -137,7 +149,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
 
     /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
     /// behind are queued for the link). Add the frame's points through the returned [`SensorFrame`].
-    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N> {
+    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N, H> {
         let t = pose.translation.vector;
         self.map.move_window([t.x, t.y, t.z], &mut self.encoder);
         SensorFrame {
@@ -198,7 +210,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     }
 
     /// The map (voxels, posteriors, counters, rejections).
-    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
         &self.map
     }
     /// The encoder (queue, link statistics).
@@ -224,13 +236,20 @@ pub struct SensorFrame<
     const P: usize,
     const QB: usize,
     const N: usize,
+    const H: usize,
 > {
-    mapper: &'m mut Mapper<D, CAP, P, QB, N>,
+    mapper: &'m mut Mapper<D, CAP, P, QB, N, H>,
     pose: Isometry3<f32>,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    SensorFrame<'_, D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    > SensorFrame<'_, D, CAP, P, QB, N, H>
 {
     /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
     /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in
@@ -265,7 +284,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     }
 
     /// The map, read-only (e.g. for a report between chunks).
-    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
         &self.mapper.map
     }
 }

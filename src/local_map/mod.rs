@@ -135,6 +135,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     /// Decoding scratch (a 516-byte temporary kept off the device stack).
     scratch: ObsStats<D>,
     centre: VoxelKey,
+    /// Whether the last window move left a voxel outside the window (its eviction was refused).
+    stranded: bool,
     radius: i32,
     /// Scale of int8 features (y = scale · code); 0 = none set (int8 points are refused).
     int8_scale: f32,
@@ -175,6 +177,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         last_hot: 0,
         scratch: ObsStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
+        stranded: false,
         radius: 0,
         int8_scale: 0.0,
         dither: Dither::UNSEEDED,
@@ -222,6 +225,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.hot_hand = 0;
         self.last_hot = 0;
         self.radius = radius as i32;
+        self.stranded = false;
         self.int8_scale = 0.0;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
