@@ -463,6 +463,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             return Err(Rejection::CodeOutOfRange);
         }
         let h = self.hot_entry(key, sink)?;
+        if self.hot_is_full(h) {
+            self.restart_hot(h);
+        }
         let scale = self.int8_scale;
         let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
         e.acc.add_codes(codes, scale);
@@ -567,6 +570,17 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// Bytes one voxel costs: its slot plus its share of the index.
     pub const BYTES_PER_VOXEL: usize =
         core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
+
+    /// Bytes one entry of the full-precision (hot) tier costs.
+    pub const BYTES_PER_HOT_VOXEL: usize = core::mem::size_of::<Hot<D>>();
+
+    /// Bytes of everything else: the kernel table, the decoding scratch, hands and counters.
+    pub const FIXED_BYTES: usize = core::mem::size_of::<LocalMap<D, 0, P, 0>>();
+
+    /// The map's RAM: `CAP` × [`Self::BYTES_PER_VOXEL`] + `H` × [`Self::BYTES_PER_HOT_VOXEL`] +
+    /// [`Self::FIXED_BYTES`]; equals `size_of::<Self>()` (tested).
+    pub const RAM_BYTES: usize =
+        CAP * Self::BYTES_PER_VOXEL + H * Self::BYTES_PER_HOT_VOXEL + Self::FIXED_BYTES;
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize> ObsLookup<D>
