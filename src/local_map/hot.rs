@@ -35,7 +35,8 @@ impl<const D: usize> Acc<D> {
                 *self = Self::Codes(c);
             }
             _ => {
-                // Full sums (65,535 points in one visit) or f32 statistics: continue in f32.
+                // f32 statistics (the voxel took an f32 feature first), or full sums (callers restart
+                // those first): continue in f32.
                 self.make_float(scale);
                 if let Self::Float(o) = self {
                     o.add_point(&codes.map(|c| f32::from(c) * scale));
@@ -91,6 +92,23 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         slot.flags |= REFERENCED;
         self.counters.cooled = self.counters.cooled.saturating_add(1);
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+    }
+
+    /// Hot entry `h` holds as many int8 points as its sums can ([`crate::obs::CODE_SUMS_MAX_COUNT`]): merge
+    /// them into the slot's codes and start afresh, the voxel staying hot.
+    pub(super) fn restart_hot(&mut self, h: usize) {
+        self.cool(h);
+        let Some(e) = self.hot.get_mut(h) else { return };
+        e.acc = Acc::Float(ObsStats::EMPTY);
+        if let Some(slot) = self.slots.get_mut(usize::from(e.slot)) {
+            slot.hot = h as u8 + 1;
+        }
+    }
+
+    /// Whether hot entry `h` holds int8 sums that cannot take another point.
+    #[inline]
+    pub(super) fn hot_is_full(&self, h: usize) -> bool {
+        matches!(self.hot.get(h), Some(Hot { acc: Acc::Codes(c), .. }) if c.is_full())
     }
 
     /// Drop hot entry `h` (its slot is being freed): the last entry moves into its place.
