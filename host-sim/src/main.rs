@@ -233,12 +233,35 @@ fn integrate<const D: usize>(
     Ok(())
 }
 
-fn main() -> Result<()> {
+/// A user's mistake — bad input, a file that cannot be used — is one line on stderr and exit status 1,
+/// with no backtrace even when `RUST_BACKTRACE=1` is set (returning the error from `main` would print
+/// anyhow's backtrace under it). Our own bugs panic, and the panic hook still prints their backtrace.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("Error: {}", one_line(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// The error and its causes on one line (`outer: inner`), any line breaks inside them folded.
+fn one_line(e: &anyhow::Error) -> String {
+    format!("{e:#}")
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn run() -> Result<()> {
     match Cli::parse().command {
         // The robot's link: a simulated faulty serial link both ways to a base station.
         Command::Demo(args) => {
             let session = latentbki::wire::SessionConfig::new(
-                &args.map.config()?,
+                &host_sim::eval::cli::demo_config(&args)?,
                 host_sim::eval::methods::D,
                 host_sim::demo_radio::CODEC,
                 latentbki::wire::NO_FEATURE_SPACE,
@@ -250,7 +273,7 @@ fn main() -> Result<()> {
                 .lock()
                 .map_err(|_| anyhow::anyhow!("link state poisoned"))?;
             // The f32 reference of all points: the LatentBKI f32 map at the robot's filter size.
-            let f = args.map.config()?.filter_size();
+            let f = host_sim::eval::cli::demo_config(&args)?.filter_size();
             if let Some(r) = report
                 .results
                 .iter()

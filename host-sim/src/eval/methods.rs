@@ -300,6 +300,10 @@ pub struct OnDevice {
     /// Voxels handed to the link, merged per key (what the base station's global map holds).
     evicted: HashMap<VoxelKey, ObsStats<D>>,
     link: Option<Box<dyn Radio>>,
+    /// int8 features: `Some(0.0)` until the first frame sets the scale, then `Some(scale)`.
+    int8_scale: Option<f32>,
+    /// The robot's setup (re-applied with the int8 scale once the first frame sets it).
+    setup: Setup,
 }
 
 /// Merge a tapped voxel into the host's record of what was handed to the link.
@@ -309,6 +313,10 @@ fn record(evicted: &mut HashMap<VoxelKey, ObsStats<D>>, v: &Evicted<'_, D>) {
         .and_modify(|m| m.merge(v.obs))
         .or_insert(*v.obs);
 }
+
+/// Headroom of the int8 scale over the first frame's largest |feature component| (later frames may reach
+/// further; beyond ±127 codes clamp).
+const INT8_HEADROOM: f32 = 1.25;
 
 impl OnDevice {
     /// A robot with a window of `window_radius` metres around it; its link goes to `link` (e.g. the
@@ -326,7 +334,17 @@ impl OnDevice {
             robot,
             evicted: HashMap::new(),
             link,
+            int8_scale: None,
+            setup,
         })
+    }
+
+    /// Feed the robot int8 features: each frame's features quantized with one global scale (round to
+    /// nearest, clamp to ±127), the scale set from the first frame's largest |component| with 25 %
+    /// headroom — what a firmware does with an accelerator whose output scale was calibrated once.
+    pub fn with_int8_features(mut self) -> Self {
+        self.int8_scale = Some(0.0);
+        self
     }
 
     /// The robot.
@@ -377,12 +395,39 @@ impl ObsLookup<D> for OnDevice {
 impl Mapper for OnDevice {
     fn integrate(&mut self, frame: &EncodedFrame) {
         let evicted = &mut self.evicted;
-        self.robot.integrate_tapped(
-            &frame.pose,
-            &frame.points,
-            &frame.features,
-            |v: &Evicted<'_, D>| record(evicted, v),
-        );
+        let tap = |v: &Evicted<'_, D>| record(evicted, v);
+        match self.int8_scale {
+            None => {
+                self.robot
+                    .integrate_tapped(&frame.pose, &frame.points, &frame.features, tap);
+            }
+            Some(mut scale) => {
+                if scale <= 0.0 {
+                    let max = frame
+                        .features
+                        .iter()
+                        .flatten()
+                        .fold(0.0f32, |m, v| m.max(v.abs()));
+                    if max <= 0.0 || max.is_nan() {
+                        return; // nothing to calibrate on (an empty frame): wait for one with features
+                    }
+                    scale = max * INT8_HEADROOM / 127.0;
+                    self.int8_scale = Some(scale);
+                    // Nothing was integrated yet: the robot starts over with the calibrated scale.
+                    self.robot
+                        .configure(&self.setup.with_int8_features(scale))
+                        .expect("a finite positive scale of bounded features");
+                }
+                let codes: Vec<[i8; D]> = frame
+                    .features
+                    .iter()
+                    .map(|y| y.map(|v| (v / scale).round().clamp(-127.0, 127.0) as i8))
+                    .collect();
+                self.robot
+                    .begin_frame_tapped(&frame.pose, tap)
+                    .add_points_i8(&frame.points, &codes);
+            }
+        }
         match &mut self.link {
             Some(l) => l.tick(&mut self.robot),
             None => {
