@@ -139,11 +139,13 @@ impl<
     > Mapper<D, CAP, P, QB, N, H>
 {
     /// The mapper's RAM (its `static`): the map's [`LocalMap::RAM_BYTES`] (voxels, hot tier, kernel table)
-    /// plus the encoder (queue `QB`, two frame buffers of `N`, state), rounded to the alignment. Equals
-    /// `size_of::<Self>()` (tested), so a firmware checks its budget at compile time:
-    /// `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
+    /// plus the encoder (queue `QB`, two frame buffers of `N`, state), the acknowledgement reader and the
+    /// live-update hand, rounded to the alignment. Equals `size_of::<Self>()` (tested), so a firmware
+    /// checks its budget at compile time: `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
     pub const RAM_BYTES: usize = (LocalMap::<D, CAP, P, H>::RAM_BYTES
-        + core::mem::size_of::<FrameEncoder<D, QB, N>>())
+        + core::mem::size_of::<FrameEncoder<D, QB, N>>()
+        + core::mem::size_of::<AckReader>()
+        + core::mem::size_of::<usize>())
     .next_multiple_of(core::mem::align_of::<Self>());
 
     /// Unconfigured and all zero (a `static` of it lives in `.bss`): it takes no point and sends nothing
@@ -681,8 +683,9 @@ mod tests {
         // The hot tier is in the formula: one more hot entry costs its bytes.
         type More = Mapper<64, 1228, { packed_len(64) }, 4096, 512, 33>;
         assert_eq!(
-            More::RAM_BYTES - Big::RAM_BYTES,
-            LocalMap::<64, 1228, { packed_len(64) }>::BYTES_PER_HOT_VOXEL
+            More::RAM_BYTES,
+            (Big::RAM_BYTES + LocalMap::<64, 1228, { packed_len(64) }>::BYTES_PER_HOT_VOXEL)
+                .next_multiple_of(core::mem::align_of::<Big>())
         );
     }
 

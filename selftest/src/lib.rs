@@ -826,8 +826,9 @@ where
         return Err(RunError::NotConfigured);
     }
     let mut report = RunReport::default();
-    // The frames go to the UART and, through the core's receiver, come back acknowledged.
-    let mut link = loopback::Loopback::<W, N>::new(w);
+    // The frames go to the UART; the loopback acknowledges them as a base station on a perfect link would.
+    let mut back = loopback::Loopback::new();
+    let (robot, session) = (SELF_TEST_ROBOT, scenario.session);
     for frame in 0..scenario.frames {
         let f = integrate_frame(
             &scenario.scene,
@@ -842,24 +843,28 @@ where
         report.peak_voxels = report.peak_voxels.max(mapper.map().len() as u32);
         on_frame(frame, &f, mapper.map());
         mapper
-            .tick(&mut link, scenario.tick_budget)
+            .tick(w, scenario.tick_budget)
             .map_err(|latentbki::frame::TickError::Write(e, _)| RunError::Write(e))?;
-        mapper.poll_acks(&mut link).map_err(RunError::Write)?;
+        back.acknowledge_all(robot, session, mapper.encoder().next_seq());
+        let Ok(_) = mapper.poll_acks(&mut back);
     }
-    // Drain: a full re-send buffer waits for acknowledgements, which the loopback has ready at once.
+    // Drain: a full re-send buffer waits for acknowledgements.
     let before = mapper.map().counters().evicted;
     loop {
-        match mapper.drain(&mut link) {
-            Ok(_) => break,
+        let done = match mapper.drain(w) {
+            Ok(_) => true,
             Err(DrainError::Write(e)) => return Err(RunError::Write(e)),
-            Err(DrainError::Stuck) => {
-                if mapper.poll_acks(&mut link).map_err(RunError::Write)? == 0 {
-                    return Err(RunError::Stuck);
-                }
-            }
+            Err(DrainError::Stuck) => false,
+        };
+        back.acknowledge_all(robot, session, mapper.encoder().next_seq());
+        let Ok(read) = mapper.poll_acks(&mut back);
+        if done {
+            break;
+        }
+        if read == 0 {
+            return Err(RunError::Stuck);
         }
     }
-    mapper.poll_acks(&mut link).map_err(RunError::Write)?;
     if !mapper.is_drained() {
         return Err(RunError::Stuck);
     }

@@ -52,7 +52,17 @@ impl Ack {
     /// [`MAX_ACK_WIRE`]), or `None` if `out` is too small.
     pub fn encode(&self, out: &mut [u8]) -> Option<usize> {
         let mut body = [0u8; MAX_ACK_BODY + 4];
-        let n = postcard::to_slice(self, &mut body).ok()?.len();
+        let mut n = 0;
+        *body.get_mut(0)? = self.version;
+        n += 1;
+        for v in [
+            u64::from(self.robot),
+            u64::from(self.session),
+            u64::from(self.highest),
+            self.received,
+        ] {
+            n += put_varint(body.get_mut(n..)?, v)?;
+        }
         let crc = CRC32.checksum(body.get(..n)?);
         body.get_mut(n..n + 4)?.copy_from_slice(&crc.to_le_bytes());
         let (first, rest) = out.split_first_mut()?;
@@ -64,11 +74,57 @@ impl Ack {
 
     /// Parse a checked body (CRC removed). `None` if it is not exactly one acknowledgement of this version.
     pub fn parse(body: &[u8]) -> Option<Self> {
-        match postcard::take_from_bytes::<Self>(body) {
-            Ok((ack, [])) if ack.version == PROTOCOL_VERSION && ack.received & 1 == 1 => Some(ack),
-            _ => None,
+        let (&version, mut rest) = body.split_first()?;
+        let mut next = |max_bytes: usize, max: u64| {
+            let (v, r) = take_varint(rest, max_bytes)?;
+            rest = r;
+            (v <= max).then_some(v)
+        };
+        let ack = Self {
+            version,
+            robot: next(3, u64::from(u16::MAX))? as u16,
+            session: next(5, u64::from(u32::MAX))? as u32,
+            highest: next(5, u64::from(u32::MAX))? as u32,
+            received: next(10, u64::MAX)?,
+        };
+        (rest.is_empty() && ack.version == PROTOCOL_VERSION && ack.received & 1 == 1).then_some(ack)
+    }
+}
+
+// The body is postcard's encoding of `Ack` (varints), written and read here by hand: the robot reads
+// acknowledgements on its firmware, where serde's generic machinery would cost flash for five fields.
+
+/// Write `v` as a LEB128 varint into `out`; returns its length.
+fn put_varint(out: &mut [u8], mut v: u64) -> Option<usize> {
+    let mut n = 0;
+    loop {
+        let byte = (v & 0x7f) as u8;
+        v >>= 7;
+        let slot = out.get_mut(n)?;
+        n += 1;
+        if v == 0 {
+            *slot = byte;
+            return Some(n);
+        }
+        *slot = byte | 0x80;
+    }
+}
+
+/// Read a LEB128 varint of at most `max_bytes` bytes (and 64 bits); returns it and the rest.
+fn take_varint(bytes: &[u8], max_bytes: usize) -> Option<(u64, &[u8])> {
+    let mut v = 0u64;
+    for i in 0..max_bytes.min(10) {
+        let b = *bytes.get(i)?;
+        let part = u64::from(b & 0x7f);
+        if i == 9 && part > 1 {
+            return None; // beyond 64 bits
+        }
+        v |= part << (7 * i);
+        if b & 0x80 == 0 {
+            return Some((v, bytes.get(i + 1..)?));
         }
     }
+    None
 }
 
 /// What an [`AckReader`] saw.
@@ -199,6 +255,36 @@ mod tests {
             highest,
             received,
         }
+    }
+
+    #[test]
+    fn the_body_is_postcards_encoding() {
+        for a in [
+            ack(0, 1),
+            ack(u32::MAX, u64::MAX),
+            ack(300, 0x8000_0000_0000_0001),
+        ] {
+            let mut ours = [0u8; MAX_ACK_WIRE];
+            let n = a.encode(&mut ours).unwrap();
+            let mut body = [0u8; MAX_ACK_WIRE];
+            let m = cobs::decode(&ours[1..n - 1], &mut body).unwrap();
+            let mut theirs = [0u8; MAX_ACK_BODY];
+            let p = postcard::to_slice(&a, &mut theirs).unwrap();
+            assert_eq!(&body[..m - 4], &p[..]);
+            assert_eq!(Ack::parse(p), Some(a));
+            assert_eq!(postcard::from_bytes::<Ack>(&body[..m - 4]).unwrap(), a);
+        }
+        // Overlong varints and trailing bytes are refused.
+        assert_eq!(Ack::parse(&[3, 0x81, 0x80, 0x80, 0x00, 0, 0, 1]), None);
+        assert_eq!(Ack::parse(&[3, 3, 9, 5, 1, 0]), None);
+        assert_eq!(
+            Ack::parse(&[3, 3, 9, 5, 1]),
+            Some(Ack {
+                highest: 5,
+                received: 1,
+                ..ack(0, 1)
+            })
+        );
     }
 
     #[test]
