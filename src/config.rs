@@ -101,6 +101,9 @@ pub enum ConfigError {
     /// The on-device map stores per-voxel observation statistics, which cannot express the sub-voxel
     /// kernel (it weighs each point by its position inside its voxel).
     SubVoxelOnDevice,
+    /// The scale of int8 features must be finite and > 0, and small enough that no feature exceeds
+    /// [`crate::batch::FEATURE_LIMIT`].
+    Int8Scale,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -115,6 +118,9 @@ impl core::fmt::Display for ConfigError {
             Self::Window => "window radius must be between 1 and 16000 voxels",
             Self::SubVoxelOnDevice => {
                 "the on-device map needs the voxel-offset kernel (sub-voxel cells = 0)"
+            }
+            Self::Int8Scale => {
+                "int8 feature scale must be finite, > 0 and at most FEATURE_LIMIT / (127 sqrt(D))"
             }
         })
     }

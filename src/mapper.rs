@@ -35,6 +35,9 @@ pub struct Setup {
     /// Id of the PCA the features were compressed with ([`crate::wire::feature_space_id`]), or
     /// [`NO_FEATURE_SPACE`].
     pub feature_space: u32,
+    /// Scale of int8 features (a code c is the feature value `int8_scale` · c); 0 = the robot gives f32
+    /// features only. Sent in the session header.
+    pub int8_scale: f32,
 }
 
 impl Setup {
@@ -46,12 +49,23 @@ impl Setup {
             link,
             codec: SummaryCodec::DEFAULT,
             feature_space: NO_FEATURE_SPACE,
+            int8_scale: 0.0,
+        }
+    }
+
+    /// The same setup for a robot whose features are int8 codes: c stands for `scale` · c (e.g. an NPU's
+    /// output quantization scale). f32 features stay accepted too.
+    pub const fn with_int8_features(self, scale: f32) -> Self {
+        Self {
+            int8_scale: scale,
+            ..self
         }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.
     pub fn session(&self, dim: usize) -> SessionConfig {
         SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
+            .with_int8_scale(self.int8_scale)
     }
 }
 
@@ -111,6 +125,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         self.map
             .configure(setup.map, setup.window_radius)
             .map_err(SetupError::Map)?;
+        if setup.int8_scale != 0.0 {
+            self.map
+                .set_int8_scale(setup.int8_scale)
+                .map_err(SetupError::Map)?;
+        }
         self.encoder
             .configure(setup.session(D), setup.link)
             .map_err(SetupError::Link)
@@ -135,6 +154,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         features: &[[f32; D]],
     ) -> usize {
         self.begin_frame(pose).add_points(points, features)
+    }
+
+    /// [`Self::integrate`] for int8 features (see [`Setup::with_int8_features`]).
+    pub fn integrate_i8(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        codes: &[[i8; D]],
+    ) -> usize {
+        self.begin_frame(pose).add_points_i8(points, codes)
     }
 
     /// Spend up to `budget` bytes on the link: the session header when due, then the evicted voxels
@@ -176,6 +205,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     pub fn encoder(&self) -> &FrameEncoder<D, QB, N> {
         &self.encoder
     }
+    /// The information-gain score of a candidate view against the voxels held now
+    /// ([`crate::info_gain::view_score`]: `hits` sorted by key, each with its expected point count).
+    pub fn view_score(
+        &self,
+        hits: &[(crate::key::VoxelKey, f32)],
+    ) -> Result<f32, crate::info_gain::ScoreError> {
+        let (lut, prior) = (self.map.kernel(), self.map.prior());
+        crate::info_gain::view_score(lut, &self.map, prior.lambda, hits)
+    }
 }
 
 /// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose.
@@ -208,6 +246,22 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         let m = &mut self.mapper;
         m.map
             .add_point(to_map_frame(&self.pose, point), feature, &mut m.encoder)
+    }
+
+    /// [`Self::add_points`] for int8 features: each code c stands for the setup's
+    /// [`Setup::int8_scale`] · c. The map keeps exact integer sums while a voxel is observed, so a
+    /// microcontroller without an FPU adds a point without float arithmetic on the features.
+    pub fn add_points_i8(&mut self, points: &[[f32; 3]], codes: &[[i8; D]]) -> usize {
+        let m = &mut self.mapper;
+        m.map
+            .add_points_i8(&self.pose, points, codes, &mut m.encoder)
+    }
+
+    /// [`Self::add_point`] for an int8 feature (a beam at a time).
+    pub fn add_point_i8(&mut self, point: [f32; 3], codes: &[i8; D]) -> Result<(), Rejection> {
+        let m = &mut self.mapper;
+        m.map
+            .add_point_i8(to_map_frame(&self.pose, point), codes, &mut m.encoder)
     }
 
     /// The map, read-only (e.g. for a report between chunks).

@@ -4,8 +4,70 @@
 
 use super::{Hot, LocalMap, REFERENCED};
 use crate::key::VoxelKey;
-use crate::obs::ObsStats;
-use crate::quant::QuantVoxel;
+use crate::obs::{CodeSums, ObsStats};
+
+/// A hot voxel's new points: f32 features by Welford's update, int8 codes as exact integer sums (the
+/// first point decides; a point of the other kind turns the sums into f32 statistics first).
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Acc<const D: usize> {
+    Float(ObsStats<D>),
+    Codes(CodeSums<D>),
+}
+
+impl<const D: usize> Acc<D> {
+    /// Add an f32 feature.
+    #[inline]
+    pub(super) fn add_f32(&mut self, y: &[f32; D], scale: f32) {
+        self.make_float(scale);
+        if let Self::Float(o) = self {
+            o.add_point(y);
+        }
+    }
+
+    /// Add int8 codes of scale `scale` (checked by the caller).
+    #[inline]
+    pub(super) fn add_codes(&mut self, codes: &[i8; D], scale: f32) {
+        match self {
+            Self::Codes(c) if !c.is_full() => c.add(codes),
+            Self::Float(o) if o.is_empty() => {
+                let mut c = CodeSums::EMPTY;
+                c.add(codes);
+                *self = Self::Codes(c);
+            }
+            _ => {
+                // Full sums (65,535 points in one visit) or f32 statistics: continue in f32.
+                self.make_float(scale);
+                if let Self::Float(o) = self {
+                    o.add_point(&codes.map(|c| f32::from(c) * scale));
+                }
+            }
+        }
+    }
+
+    /// Turn integer sums into f32 statistics.
+    pub(super) fn make_float(&mut self, scale: f32) {
+        if let Self::Codes(c) = self {
+            *self = Self::Float(c.to_obs(scale));
+        }
+    }
+
+    /// Merge what it holds into `obs`.
+    #[inline]
+    pub(super) fn merge_into(&self, obs: &mut ObsStats<D>, scale: f32) {
+        match self {
+            Self::Float(o) => obs.merge(o),
+            Self::Codes(c) => obs.merge_codes(c, scale),
+        }
+    }
+
+    /// Whether it holds nothing.
+    fn is_empty(&self) -> bool {
+        match self {
+            Self::Float(o) => o.is_empty(),
+            Self::Codes(c) => c.count == 0,
+        }
+    }
+}
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
     /// Merge hot entry `h` into its slot's codes (one decode, one exact merge, one encode) and mark the slot
@@ -18,10 +80,12 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         };
         if slot.codes.count > 0.0 {
             slot.codes.decode_into(&mut self.scratch);
-            self.scratch.merge(&hot.obs);
-            slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
         } else {
-            slot.codes = QuantVoxel::encode(&hot.obs, &mut self.dither);
+            self.scratch = ObsStats::EMPTY;
+        }
+        if !hot.acc.is_empty() {
+            hot.acc.merge_into(&mut self.scratch, self.int8_scale);
+            slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
         }
         slot.hot = 0;
         slot.flags |= REFERENCED;
@@ -75,7 +139,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         };
         if let Some(e) = self.hot.get_mut(h) {
             *e = Hot {
-                obs: ObsStats::EMPTY,
+                acc: Acc::Float(ObsStats::EMPTY),
                 key,
                 slot: s as u16,
                 referenced: true,
