@@ -197,6 +197,15 @@ impl MapConfig {
         })
     }
 
+    /// The local map's window radius (m) for a sensor whose returns reach `sensor_range` metres: the range,
+    /// plus two voxels for the rounding of the point's and the sensor's voxel keys (the window is measured
+    /// between keys; a return outside it is refused), plus the kernel's reach, so the voxels a far return
+    /// updates through the kernel stay in the window while it is taken. A `const fn`, for a `static`
+    /// [`crate::Setup`].
+    pub const fn window_for_range(&self, sensor_range: f32) -> f32 {
+        sensor_range + (self.filter_size / 2 + 2) as f32 * self.voxel_size
+    }
+
     /// Edge length of a voxel in metres.
     pub fn voxel_size(&self) -> f32 {
         self.voxel_size

@@ -16,7 +16,7 @@ use crate::batch::Rejection;
 use crate::config::{ConfigError, MapConfig};
 use crate::frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
 use crate::key::to_map_frame;
-use crate::local_map::LocalMap;
+use crate::local_map::{LocalMap, HOT_VOXELS};
 use crate::sink::Evicted;
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 use nalgebra::Isometry3;
@@ -101,15 +101,35 @@ impl<E> From<TickError<E>> for DrainError<E> {
 /// and frames of at most `N` bytes. `P` is [`crate::quant::packed_len`]`(D)` (checked at compile time).
 ///
 /// Large (≈ `CAP` × [`LocalMap::BYTES_PER_VOXEL`] + `QB` + 2 `N` bytes): place it in a `static`.
-pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-{
-    map: LocalMap<D, CAP, P>,
+pub struct Mapper<
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const QB: usize,
+    const N: usize,
+    const H: usize = HOT_VOXELS,
+> {
+    map: LocalMap<D, CAP, P, H>,
     encoder: FrameEncoder<D, QB, N>,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    Mapper<D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    > Mapper<D, CAP, P, QB, N, H>
 {
+    /// The mapper's RAM (its `static`): the map's [`LocalMap::RAM_BYTES`] (voxels, hot tier, kernel table)
+    /// plus the encoder (queue `QB`, two frame buffers of `N`, state), rounded to the alignment. Equals
+    /// `size_of::<Self>()` (tested), so a firmware checks its budget at compile time:
+    /// `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
+    pub const RAM_BYTES: usize = (LocalMap::<D, CAP, P, H>::RAM_BYTES
+        + core::mem::size_of::<FrameEncoder<D, QB, N>>())
+    .next_multiple_of(core::mem::align_of::<Self>());
+
     /// Unconfigured and all zero (a `static` of it lives in `.bss`): it takes no point and sends nothing
     /// until [`Self::configure`].
     #[allow(clippy::declare_interior_mutable_const)]
@@ -137,7 +157,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
 
     /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
     /// behind are queued for the link). Add the frame's points through the returned [`SensorFrame`].
-    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N> {
+    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N, H> {
         let t = pose.translation.vector;
         self.map.move_window([t.x, t.y, t.z], &mut self.encoder);
         SensorFrame {
@@ -197,8 +217,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         Ok(evicted)
     }
 
+    /// How many evicted voxels (summaries) the encoder's queue holds with this session's codec: `QB` / the
+    /// bytes one queued summary takes (0 before [`Self::configure`]). Voxels beyond it stay in the map until
+    /// a tick sends some (back-pressure).
+    pub fn queue_capacity(&self) -> usize {
+        self.encoder.capacity()
+    }
+
     /// The map (voxels, posteriors, counters, rejections).
-    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
         &self.map
     }
     /// The encoder (queue, link statistics).
@@ -224,13 +251,20 @@ pub struct SensorFrame<
     const P: usize,
     const QB: usize,
     const N: usize,
+    const H: usize,
 > {
-    mapper: &'m mut Mapper<D, CAP, P, QB, N>,
+    mapper: &'m mut Mapper<D, CAP, P, QB, N, H>,
     pose: Isometry3<f32>,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    SensorFrame<'_, D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    > SensorFrame<'_, D, CAP, P, QB, N, H>
 {
     /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
     /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in
@@ -265,7 +299,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
     }
 
     /// The map, read-only (e.g. for a report between chunks).
-    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
         &self.mapper.map
     }
 }
@@ -422,5 +456,64 @@ mod tests {
             mapper.configure(&no_codec),
             Err(SetupError::Link(WireError::BadConfig))
         );
+    }
+
+    #[test]
+    fn ram_bytes_is_the_size_of_the_mapper() {
+        use core::mem::size_of;
+        assert_eq!(Small::RAM_BYTES, size_of::<Small>());
+        type Big = Mapper<64, 1228, { packed_len(64) }, 4096, 512>;
+        assert_eq!(Big::RAM_BYTES, size_of::<Big>());
+        type Lidar = Mapper<64, 900, { packed_len(64) }, 2048, 256, 96>;
+        assert_eq!(Lidar::RAM_BYTES, size_of::<Lidar>());
+        type Odd = Mapper<13, 77, { packed_len(13) }, 333, 129, 5>;
+        assert_eq!(Odd::RAM_BYTES, size_of::<Odd>());
+        // The hot tier is in the formula: one more hot entry costs its bytes.
+        type More = Mapper<64, 1228, { packed_len(64) }, 4096, 512, 33>;
+        assert_eq!(
+            More::RAM_BYTES - Big::RAM_BYTES,
+            LocalMap::<64, 1228, { packed_len(64) }>::BYTES_PER_HOT_VOXEL
+        );
+    }
+
+    #[test]
+    fn the_queue_capacity_is_in_summaries() {
+        let mut mapper = Box::new(Small::EMPTY);
+        assert_eq!(mapper.queue_capacity(), 0);
+        mapper.configure(&setup()).unwrap();
+        let n = mapper.queue_capacity();
+        assert!(n > 0);
+        // Filling the map beyond the queue: exactly `n` evictions are queued before the queue refuses.
+        for x in 0..40 {
+            frame(&mut mapper, x as f32 * 3.0);
+            if mapper.encoder().queued() == n {
+                break;
+            }
+        }
+        assert_eq!(mapper.encoder().queued(), n);
+        assert!(mapper.encoder().stats().refused > 0);
+    }
+
+    #[test]
+    fn the_window_covers_the_sensor_range() {
+        const W: f32 = MapConfig::DEFAULT.window_for_range(4.0);
+        static S: Setup = Setup::new(
+            MapConfig::DEFAULT,
+            MapConfig::DEFAULT.window_for_range(4.0),
+            EncoderSettings::new(1, 1),
+        );
+        assert!((W - 4.3).abs() < 1e-6);
+        let mut mapper = Box::new(Small::EMPTY);
+        mapper.configure(&S).unwrap();
+        // Returns at the full range in every direction, from a sensor anywhere in its voxel: all taken.
+        let mut frame = mapper.begin_frame(&Isometry3::from_parts(
+            Translation3::new(0.099, -0.001, 0.05),
+            UnitQuaternion::identity(),
+        ));
+        for i in 0..64 {
+            let a = i as f32 * core::f32::consts::TAU / 64.0;
+            let p = [4.0 * libm::cosf(a), 4.0 * libm::sinf(a), 0.0];
+            assert_eq!(frame.add_point(p, &[0.5; D]), Ok(()), "{p:?}");
+        }
     }
 }

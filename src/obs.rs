@@ -105,8 +105,7 @@ impl<const D: usize> ObsStats<D> {
         for i in 0..D {
             let (sum, sq) = (sums.sum[i], sums.squares[i]);
             let y_bar = scale * (sum as f32 * inv_n);
-            let num = i64::from(sums.count) * i64::from(sq) - i64::from(sum) * i64::from(sum);
-            let s_bar = num as f32 * scale2_over_n;
+            let s_bar = scatter_numerator(sums.count, sum, sq) as f32 * scale2_over_n;
             crate::stats::update_dim(
                 &mut self.mean[i],
                 &mut self.scatter[i],
@@ -140,8 +139,10 @@ impl<const D: usize> ObsStats<D> {
 /// symmetric and a code's negation is a code).
 pub const CODE_MAX: i8 = 127;
 
-/// Points one [`CodeSums`] may hold: below it, Σc² < 2³² (16,129 · 65,535) and Σc is exact in f32.
-pub const CODE_SUMS_MAX_COUNT: u32 = 65_535;
+/// Points one [`CodeSums`] may hold: up to it, n·Σc² and (Σc)² stay below 2³¹ (255² · 127² · 255 <
+/// 1.1·10⁹), so the scatter's numerator is formed in i32 — no 64-bit arithmetic, which a Cortex-M0 or an
+/// RV32 does in library calls. A voxel observed longer cools (one merge per 255 points).
+pub const CODE_SUMS_MAX_COUNT: u32 = 255;
 
 /// What was observed in one voxel from int8 features (y = scale · c), in exact integers: the point count n
 /// and per dimension Σc and Σc² of the codes.
@@ -178,16 +179,17 @@ impl<const D: usize> CodeSums<D> {
     /// additions and a multiply per dimension.
     #[inline]
     pub fn add(&mut self, codes: &[i8; D]) {
-        self.count += 1;
+        self.count = self.count.wrapping_add(1);
+        // Wrapping only so that no overflow check is linked: with n ≤ 255 nothing can wrap.
         for ((s, q), &c) in self.sum.iter_mut().zip(&mut self.squares).zip(codes) {
             let c = i32::from(c);
-            *s += c;
-            *q += (c * c) as u32;
+            *s = s.wrapping_add(c);
+            *q = q.wrapping_add(c.wrapping_mul(c) as u32);
         }
     }
 
     /// The same observations as f32 statistics of y = scale · c: m = scale · Σc / n,
-    /// S = scale² · (n Σc² − (Σc)²) / n with the numerator exact in i64 (rounded once to f32).
+    /// S = scale² · (n Σc² − (Σc)²) / n with the numerator exact in i32 (rounded once to f32).
     pub fn to_obs(&self, scale: f32) -> ObsStats<D> {
         let mut out = ObsStats::EMPTY;
         self.write_obs(scale, &mut out);
@@ -212,16 +214,31 @@ impl<const D: usize> CodeSums<D> {
             .zip(&self.squares)
         {
             *m = scale * (sum as f32 * inv_n);
-            let num = i64::from(self.count) * i64::from(sq) - i64::from(sum) * i64::from(sum);
-            *s = num as f32 * scale2_over_n;
+            *s = scatter_numerator(self.count, sum, sq) as f32 * scale2_over_n;
         }
     }
 }
 
-/// Whether every code is within ±[`CODE_MAX`] (−128 is not).
+/// n·Σc² − (Σc)² = n·S in code units, exact: with n ≤ [`CODE_SUMS_MAX_COUNT`] both terms are below 2³¹
+/// (wrapping arithmetic only so that no overflow check is linked; it cannot wrap). Never negative.
+#[inline(always)]
+fn scatter_numerator(n: u32, sum: i32, squares: u32) -> u32 {
+    n.wrapping_mul(squares)
+        .wrapping_sub(sum.wrapping_mul(sum) as u32)
+}
+
+/// Whether every code is within ±[`CODE_MAX`] (−128 is not). Four codes at a time: a byte is 0x80 exactly
+/// when the same byte of `w ^ 0x80808080` is zero, found by the classic has-zero-byte test.
 #[inline]
 pub fn code_in_range<const D: usize>(codes: &[i8; D]) -> bool {
-    codes.iter().all(|&c| c != i8::MIN)
+    let chunks = codes.chunks_exact(4);
+    let tail_ok = chunks.remainder().iter().all(|&c| c != i8::MIN);
+    let mut bad = 0u32;
+    for c in chunks {
+        let w = u32::from_le_bytes([c[0] as u8, c[1] as u8, c[2] as u8, c[3] as u8]) ^ 0x8080_8080;
+        bad |= w.wrapping_sub(0x0101_0101) & !w & 0x8080_8080;
+    }
+    bad == 0 && tail_ok
 }
 
 /// Read access to a map of per-voxel observation statistics.

@@ -229,3 +229,41 @@ fn bad_codes_and_scales_are_counted_never_stored() {
     assert_eq!(got.count, 3.0);
     assert!((got.mean[0] - 2.5).abs() < 1e-6 && got.scatter[0].abs() < 1e-5);
 }
+
+#[test]
+fn a_long_visit_merges_its_sums_every_255_points_and_counts_each_point_once() {
+    let (_, codes) = points(1000, 1);
+    let mut map = Box::new(LocalMap::<D, 64, P>::EMPTY);
+    map.configure(MapConfig::default(), 3.0).unwrap();
+    map.set_int8_scale(SCALE).unwrap();
+    let mut sink = Collect::default();
+    for c in &codes {
+        map.add_point_i8([0.05, 0.05, 0.05], c, &mut sink).unwrap();
+    }
+    assert_eq!(
+        map.counters().cooled,
+        3,
+        "merged at 255, 510 and 765 points"
+    );
+    let got = map.get(VoxelKey::new(0, 0, 0)).unwrap();
+    assert_eq!(got.count, 1000.0);
+    // Against the exact mean and scatter (f64): within one step of the stored 7-bit mean codes (scale
+    // max |μ| · 1.25 / 63) and of the scatter's minifloat codes (≤ 25 %).
+    let max_mean = (0..D)
+        .map(|d| (got.mean[d] as f64).abs())
+        .fold(0.0, f64::max);
+    let step = max_mean * 1.25 / 63.0 * 1.05;
+    for d in 0..D {
+        let ys: Vec<f64> = codes
+            .iter()
+            .map(|c| f64::from(c[d]) * f64::from(SCALE))
+            .collect();
+        let m = ys.iter().sum::<f64>() / 1000.0;
+        let s: f64 = ys.iter().map(|y| (y - m) * (y - m)).sum();
+        assert!((f64::from(got.mean[d]) - m).abs() <= step, "mean[{d}]");
+        assert!(
+            (f64::from(got.scatter[d]) / s - 1.0).abs() < 0.2,
+            "scatter[{d}]"
+        );
+    }
+}

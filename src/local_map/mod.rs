@@ -135,6 +135,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     /// Decoding scratch (a 516-byte temporary kept off the device stack).
     scratch: ObsStats<D>,
     centre: VoxelKey,
+    /// Whether the last window move left a voxel outside the window (its eviction was refused).
+    stranded: bool,
     radius: i32,
     /// Scale of int8 features (y = scale · code); 0 = none set (int8 points are refused).
     int8_scale: f32,
@@ -175,6 +177,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         last_hot: 0,
         scratch: ObsStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
+        stranded: false,
         radius: 0,
         int8_scale: 0.0,
         dither: Dither::UNSEEDED,
@@ -222,6 +225,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.hot_hand = 0;
         self.last_hot = 0;
         self.radius = radius as i32;
+        self.stranded = false;
         self.int8_scale = 0.0;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
@@ -459,6 +463,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             return Err(Rejection::CodeOutOfRange);
         }
         let h = self.hot_entry(key, sink)?;
+        if self.hot_is_full(h) {
+            self.restart_hot(h);
+        }
         let scale = self.int8_scale;
         let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
         e.acc.add_codes(codes, scale);
@@ -563,6 +570,17 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// Bytes one voxel costs: its slot plus its share of the index.
     pub const BYTES_PER_VOXEL: usize =
         core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
+
+    /// Bytes one entry of the full-precision (hot) tier costs.
+    pub const BYTES_PER_HOT_VOXEL: usize = core::mem::size_of::<Hot<D>>();
+
+    /// Bytes of everything else: the kernel table, the decoding scratch, hands and counters.
+    pub const FIXED_BYTES: usize = core::mem::size_of::<LocalMap<D, 0, P, 0>>();
+
+    /// The map's RAM: `CAP` × [`Self::BYTES_PER_VOXEL`] + `H` × [`Self::BYTES_PER_HOT_VOXEL`] +
+    /// [`Self::FIXED_BYTES`]; equals `size_of::<Self>()` (tested).
+    pub const RAM_BYTES: usize =
+        CAP * Self::BYTES_PER_VOXEL + H * Self::BYTES_PER_HOT_VOXEL + Self::FIXED_BYTES;
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize> ObsLookup<D>
