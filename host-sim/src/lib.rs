@@ -7,6 +7,7 @@ pub mod bench;
 pub mod cli_args;
 pub mod demo_link;
 pub mod eval;
+pub mod explore;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;
