@@ -4,6 +4,7 @@
 
 pub mod base_station;
 pub mod bench;
+pub mod changing;
 pub mod cli_args;
 pub mod demo_link;
 pub mod eval;

@@ -13,7 +13,10 @@ pub fn curves(path: &Path, grid: &[f32], acc: &[Vec<f64>], miou: &[Vec<f64>]) ->
         root.fill(&WHITE).map_err(err)?;
         let panels = root.split_evenly((1, 2));
         let x1 = f64::from(grid.last().copied().unwrap_or(1.0)).max(1e-3);
-        for (panel, (name, series)) in panels.iter().zip([("Accuracy (%)", acc), ("mIoU (%)", miou)]) {
+        for (panel, (name, series)) in panels
+            .iter()
+            .zip([("Accuracy (%)", acc), ("mIoU (%)", miou)])
+        {
             let y1 = series
                 .iter()
                 .flatten()

@@ -83,9 +83,10 @@ impl World {
                 lo[0] + (i % dims[0]) as f32 * CELL,
                 lo[1] + (i / dims[0]) as f32 * CELL,
             ];
-            let inside = scene.rooms.iter().any(|r| {
-                (0..2).all(|a| c[a] > r.min[a] - 0.3 && c[a] < r.max[a] + 0.3)
-            });
+            let inside = scene
+                .rooms
+                .iter()
+                .any(|r| (0..2).all(|a| c[a] > r.min[a] - 0.3 && c[a] < r.max[a] + 0.3));
             let blocked = scene.boxes.iter().any(|b| {
                 (0..2).all(|a| c[a] + RADIUS > b.min[a] && c[a] - RADIUS < b.max[a])
                     && b.max[2] > z0
@@ -136,13 +137,15 @@ impl World {
 
     /// The free cell nearest to a position.
     pub fn nearest_free(&self, p: [f32; 2]) -> Option<usize> {
-        (0..self.free.len()).filter(|&c| self.free[c]).min_by(|&a, &b| {
-            let d = |c: usize| {
-                let q = self.centre(c);
-                (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2)
-            };
-            d(a).total_cmp(&d(b))
-        })
+        (0..self.free.len())
+            .filter(|&c| self.free[c])
+            .min_by(|&a, &b| {
+                let d = |c: usize| {
+                    let q = self.centre(c);
+                    (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2)
+                };
+                d(a).total_cmp(&d(b))
+            })
     }
 
     /// The camera pose of a view.
@@ -221,6 +224,11 @@ impl World {
         cells
     }
 
+    /// The points a view is predicted to see (the coarse ray grid cast against the surfaces), map frame.
+    pub fn predicted(&self, view: View) -> Vec<[f32; 3]> {
+        self.predicted_points(&self.pose(view), &DepthCamera::default())
+    }
+
     fn predicted_points(&self, pose: &Isometry3<f32>, camera: &DepthCamera) -> Vec<[f32; 3]> {
         let fx = (camera.hfov_deg.to_radians() / 2.0).tan();
         let fy = fx * camera.height as f32 / camera.width as f32;
@@ -233,11 +241,10 @@ impl World {
                 let len = ray.norm();
                 let d = pose.rotation * (ray / len);
                 let o = pose.translation.vector;
-                if let Some((t, _, _)) = self.scene.cast(
-                    [o.x, o.y, o.z],
-                    [d.x, d.y, d.z],
-                    camera.max_depth * len,
-                ) {
+                if let Some((t, _, _)) =
+                    self.scene
+                        .cast([o.x, o.y, o.z], [d.x, d.y, d.z], camera.max_depth * len)
+                {
                     let depth = t / len;
                     if depth >= camera.min_depth {
                         let p = o + d * t;
@@ -259,7 +266,9 @@ pub fn footprint(lut: &KernelLut, points: &[[f32; 3]], per_point: f32) -> Footpr
             continue;
         };
         hits.push(key);
-        spread(lut, key, 0, |t, k| *weights.entry(t).or_default() += k * per_point);
+        spread(lut, key, 0, |t, k| {
+            *weights.entry(t).or_default() += k * per_point
+        });
     }
     hits.sort_unstable();
     hits.dedup();
