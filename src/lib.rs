@@ -126,6 +126,11 @@ pub use wire::{SessionConfig, SummaryCodec};
 // ----- open-vocabulary queries
 pub use decode::{Codebook, CodebookError, Pca};
 
+/// `docs/firmware.md` (the firmware author's guide), compiled so its examples run as doc tests.
+#[cfg(doctest)]
+#[doc = include_str!("../docs/firmware.md")]
+pub struct FirmwareGuide;
+
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;
 /// Re-exported: the PRNG the library's tests and the host's simulations use.

@@ -5,10 +5,10 @@
 //! core's math: [`ObsStats::merge_scaled`] and [`ObsStats::posterior`]). Voxels live in 8³ blocks found
 //! through one hash lookup; inside a block a voxel is an array index, so a gather's 27 neighbour lookups
 //! cost a few integer operations instead of 27 hash probes, and "every voxel in reach" is a bitmask per
-//! block. Results equal the literal paper update ([`crate::ReferenceMap`]) to f32 rounding (tests).
+//! block. Results equal the literal paper update (host-sim's `ReferenceMap`) to f32 rounding (tests).
 //!
 //! Only the voxel-offset kernel can be gathered from per-voxel statistics; a sub-voxel configuration is
-//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — [`crate::ReferenceMap`] keeps that mode.
+//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — host-sim's `ReferenceMap` keeps that mode.
 
 use latentbki::batch::locate;
 use latentbki::nalgebra::Isometry3;
@@ -77,6 +77,7 @@ pub enum ObsMapError {
 }
 
 /// An unbounded f32 map of per-voxel observation statistics.
+#[derive(Clone)]
 pub struct ObsMap<const D: usize> {
     config: MapConfig,
     lut: KernelLut,
@@ -250,6 +251,18 @@ impl<const D: usize> ObsMap<D> {
         }
     }
 
+    /// Replace a voxel's observations (e.g. the base station's merged statistics after a live update).
+    pub fn set_observations(&mut self, key: VoxelKey, obs: &ObsStats<D>) {
+        let (bk, local) = block_of(key);
+        if obs.is_empty() && self.observed(key).is_none() {
+            return; // nothing to hold, nothing held
+        }
+        let b = self.block_index_or_insert(bk);
+        let slot = self.slot_or_insert(b, local, key);
+        self.stats[slot as usize] = *obs;
+        self.times[slot as usize] = self.now; // held as of now
+    }
+
     /// The posterior of one voxel (the prior if nothing is in reach).
     pub fn posterior(&self, key: VoxelKey) -> VoxelStats<D> {
         // The table was checked to be voxel-offset at construction.
@@ -417,6 +430,17 @@ impl<const D: usize> ObsMap<D> {
     /// Points integrated so far.
     pub fn points(&self) -> u64 {
         self.points
+    }
+}
+
+impl<const D: usize> core::fmt::Debug for ObsMap<D> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ObsMap")
+            .field("config", &self.config)
+            .field("observed_voxels", &self.stats.len())
+            .field("blocks", &self.blocks.len())
+            .field("points", &self.points)
+            .finish_non_exhaustive()
     }
 }
 
