@@ -12,7 +12,6 @@ pub mod explore;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;
-pub mod order;
 pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]
