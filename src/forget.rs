@@ -49,7 +49,7 @@ impl Forgetting {
         if !(x > -126.0) {
             return 0.0;
         }
-        crate::sampling::exp2_fast(x)
+        crate::f32math::exp2(x)
     }
 }
 
