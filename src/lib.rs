@@ -77,6 +77,7 @@ pub mod batch;
 pub mod config;
 pub mod decode;
 pub mod f32math;
+pub mod fixed_pose;
 pub mod forget;
 pub mod frame;
 pub mod inference;
