@@ -5,7 +5,7 @@
 //! loses an evicted voxel.
 //!
 //! With a back channel ([`Resend`], protocol 3) part of the queue's bytes hold the frames sent but not yet
-//! acknowledged ([`super::resend`]): frames of final voxels and control frames are kept and re-sent until
+//! acknowledged (the `resend` module): frames of final voxels and control frames are kept and re-sent until
 //! acknowledged; live updates travel in frames of their own that are not kept (a newer copy supersedes a
 //! lost one). When that buffer is full, no new frame is built: the queue stops draining and the map keeps
 //! its voxels.

@@ -10,7 +10,7 @@ pub trait EvictionTap<const D: usize> {
     fn evicted(&mut self, voxel: &Evicted<'_, D>);
 }
 
-/// No tap (what [`Mapper::begin_frame`] and [`Mapper::drain`] use).
+/// No tap (what [`super::Mapper::begin_frame`] and [`super::Mapper::drain`] use).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoTap;
 
