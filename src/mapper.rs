@@ -282,7 +282,7 @@ impl<
     }
 
     /// Read the acknowledgements the back channel has ready (never blocking): acknowledged frames are
-    /// freed, frames shown missing are re-sent at the next tick. Bad bytes are refused and counted
+    /// freed, frames shown missing are re-sent once half the timeout passed. Bad bytes are refused and counted
     /// ([`crate::wire::LinkStats::bad_acks`], [`Self::ack_stats`]). Returns the bytes read.
     pub fn poll_acks<R: embedded_io::Read + embedded_io::ReadReady>(
         &mut self,

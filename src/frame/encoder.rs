@@ -49,7 +49,7 @@ pub struct Resend {
     /// sent once and a lost one is counted lost by the receiver). At least one largest frame (`N`) + 11.
     pub bytes: u32,
     /// Ticks after which an unacknowledged frame is written again. A frame that a later frame's
-    /// acknowledgement shows missing is written again at the next tick.
+    /// acknowledgement shows missing is written again after half of it (at least one tick).
     pub timeout_ticks: u32,
 }
 
@@ -331,7 +331,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 
     /// Apply an acknowledgement of this session (others are ignored and counted): acknowledged frames are
-    /// freed, frames it shows missing are re-sent at the next tick. Returns frames newly acknowledged.
+    /// freed, frames it shows missing are re-sent once half the timeout passed. Returns frames newly acknowledged.
     pub fn acknowledge(&mut self, ack: &Ack) -> u32 {
         if ack.robot != self.settings.robot || ack.session != self.settings.session {
             self.stats.bad_acks = self.stats.bad_acks.saturating_add(1);

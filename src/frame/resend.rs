@@ -206,13 +206,15 @@ impl Ring {
     }
 
     /// The oldest record due for a re-send at tick `now`: not acknowledged, and either marked as a gap and
-    /// written before this tick, or written `timeout` ticks ago or more. Returns its offset and record.
+    /// written half the timeout ago or more (at least one tick: a frame merely delayed on the link is not
+    /// re-sent at once), or written `timeout` ticks ago or more. Returns its offset and record.
     pub fn due(&self, region: &[u8], now: u32, timeout: u32) -> Option<(usize, Record)> {
+        let gap_age = (timeout / 2).max(1);
         let mut at = self.head;
         for _ in 0..self.frames {
             let r = read_head(region, at)?;
             let age = now.wrapping_sub(r.sent_at);
-            if r.flags & ACKED == 0 && ((r.flags & GAP != 0 && age >= 1) || age >= timeout) {
+            if r.flags & ACKED == 0 && ((r.flags & GAP != 0 && age >= gap_age) || age >= timeout) {
                 return Some((at, r));
             }
             at = self.next(at, r.len);
@@ -253,10 +255,14 @@ mod tests {
         // Frame 1 acknowledged first: nothing is freed (0 is older and missing; it becomes a gap).
         assert_eq!(ring.ack(&mut region, 1, 0b1), 1);
         assert_eq!(ring.frames(), 2);
-        let (at, r) = ring.due(&region, 1, 100).unwrap();
+        assert!(
+            ring.due(&region, 1, 100).is_none(),
+            "a gap waits half the timeout"
+        );
+        let (at, r) = ring.due(&region, 1, 2).unwrap();
         assert_eq!((r.seq, ring.frame(&region, at, &r)), (0, &[1u8; 30][..]));
         ring.resent(&mut region, at, 1);
-        assert!(ring.due(&region, 1, 100).is_none(), "just re-sent");
+        assert!(ring.due(&region, 1, 2).is_none(), "just re-sent");
         assert_eq!(ring.due(&region, 101, 100).map(|(_, r)| r.seq), Some(0));
         // Now 0 arrives: both are freed.
         assert_eq!(ring.ack(&mut region, 1, 0b11), 1);
