@@ -3,7 +3,8 @@
 #   flash and RAM   llvm-size of the firmware ELF, compared with the golden file
 #                   boards/qemu-mps2-an386/expected/firmware.size (BLESS=1 rewrites it)
 #   stack           high-water marks printed by the firmware (cortex-m-rt paint-stack)
-#   instructions    exact executed instructions per input point, f = 1 and f = 3, 4,096-point frames: the
+#   instructions    exact executed instructions per input point, per sensor pattern (depth frames, 8×8 ToF, 2D
+#                   LiDAR) and feature type (f32, int8), f = 1 and f = 3 (latentbki-selftest SELF_TEST): the
 #                   insncount QEMU plugin (built here with cc) counts between the markers around the map's work
 # Usage: boards/measure.sh            everything, prints a Markdown table
 #        boards/measure.sh --size     only build and compare the size (CI)
@@ -103,20 +104,33 @@ print(f"| stack, integrate-and-stream loop | {max(int(s['loop_high_water']) for 
 whole = max([int(s['setup_high_water']) for s in stack] + [int(s['loop_high_water']) for s in stack]
             + [int(mem['tail_stack_high_water'])])
 print(f"| stack, whole run (set-up included) | {whole} B | ≤ 8 KB |")
-for s, frames in sorted(runs.items()):
-    f, pts = frames[0][0], frames[0][1]
-    if pts != 4096:
+# One row per sensor pattern and feature type (the scenarios' names are in latentbki-selftest's SELF_TEST).
+names = {s: re.search(r'name=(\w+)', l).group(1) for l in stdout.splitlines() if l.startswith("scenario ")
+         for s in [int(kv(l)["s"])]}
+rows = {
+    "depth_f1": ("instructions/point, f = 1", "depth frames", "≤ 900"),
+    "depth_f3": ("instructions/point, f = 3, thumbv7em, f32 features", "depth frames", "≤ 1,200"),
+    "depth_f3_i8": ("instructions/point, f = 3, thumbv7em, i8 features", "depth frames", "≤ 600"),
+    "full_map": ("instructions/point, f = 3, full map", "depth frames, the window holds the room", ""),
+    "tof_f3": ("instructions/point, f = 3, ToF 8×8", "8×8 zones", "≤ 1,500"),
+    "lidar_f3": ("instructions/point, f = 3, scanning LiDAR", "revolutions of 360 beams, room and corridor", "≤ 1,500"),
+}
+for s, frames in sorted(runs.items(), key=lambda r: list(rows).index(names[r[0]]) if names[r[0]] in rows else 99):
+    if names[s] not in rows:
         continue
+    label, unit, goal = rows[names[s]]
     total_i = sum(i for _, _, i in frames); total_p = sum(p for _, p, _ in frames)
-    per = [i / p for _, p, i in frames]
-    goal = "≤ 900" if f == 1 else "≤ 1,200"
-    print(f"| instructions/point, f = {f} ({len(frames)} frames × 4,096 points, scenario {s}) | {total_i / total_p:.0f} mean, "
-          f"{min(per):.0f}–{max(per):.0f} per frame | {goal} |")
+    per = sorted(i / p for _, p, i in frames if p > 0)
+    med = per[len(per) // 2]
+    print(f"| {label} ({len(frames)} {unit}, {total_p:,} points, scenario {s}) | {total_i / total_p:.0f} mean, "
+          f"median {med:.0f}, {per[0]:.0f}–{per[-1]:.0f} per frame | {goal} |")
 answer = {int(kv(l)["s"]): kv(l) for l in stdout.splitlines() if l.startswith("answerable ")}
-full = [a for a in answer.values() if int(a["held"]) == int(scen[0]["capacity"])]
-best = max(answer.values(), key=lambda a: int(a["answerable"]))
+best = answer[next(s for s, n in names.items() if n == "full_map")]
+full = int(best["held"]) == int(scen[0]["capacity"])
 print(f"| answerable voxels (held + within the kernel's reach of one), full map, f = {best['f']} | "
       f"{best['answerable']} ({best['held']} held{'' if full else ', map not full'}) | ≥ 5,000 |")
+print(f"| answerable voxels per KiB of map RAM | {int(best['answerable']) / (int(mem['map_bytes']) / 1024):.1f} "
+      f"({best['answerable']} in {KB(mem['map_bytes'])}{'' if full else ', map not full'}) | ≥ 35 |")
 for s in sorted(scen):
     d = scen[s]
     print(f"| scenario {s} (f = {d['f']}) | {d['points']} points, {d['integrated']} integrated, peak {d['peak_voxels']} voxels held, "

@@ -37,6 +37,11 @@ pub enum Rejection {
     OutsideWindow,
     /// A batch had more points than features or more features than points: the unpaired ones.
     Unpaired,
+    /// An int8 feature with a code outside ±[`crate::obs::CODE_MAX`] (i.e. −128).
+    CodeOutOfRange,
+    /// An int8 feature given to a map without a valid int8 scale (none set, NaN, infinite, 0, negative,
+    /// or so large that a feature could exceed [`FEATURE_LIMIT`]).
+    FeatureScale,
 }
 
 /// Counts of rejected points, by reason. Every point handed to a map is either integrated or counted here.
@@ -55,6 +60,10 @@ pub struct RejectionCounts {
     pub outside_window: u32,
     /// Points or features without a partner in their batch.
     pub unpaired: u32,
+    /// int8 features with a code outside ±127.
+    pub code_out_of_range: u32,
+    /// int8 features refused for want of a valid scale.
+    pub feature_scale: u32,
 }
 
 impl RejectionCounts {
@@ -67,6 +76,8 @@ impl RejectionCounts {
             Rejection::NoRoom => &mut self.no_room,
             Rejection::OutsideWindow => &mut self.outside_window,
             Rejection::Unpaired => &mut self.unpaired,
+            Rejection::CodeOutOfRange => &mut self.code_out_of_range,
+            Rejection::FeatureScale => &mut self.feature_scale,
         };
         *c = c.saturating_add(1);
     }
@@ -79,6 +90,8 @@ impl RejectionCounts {
             .saturating_add(self.no_room)
             .saturating_add(self.outside_window)
             .saturating_add(self.unpaired)
+            .saturating_add(self.code_out_of_range)
+            .saturating_add(self.feature_scale)
     }
 }
 
@@ -96,6 +109,18 @@ pub fn locate<const D: usize, const CAP: usize>(
         return Err(Rejection::NonFiniteFeature);
     }
     Ok((key, lut.cell_of(position, key)))
+}
+
+/// Validate a map-frame position and find its voxel (for features checked elsewhere, e.g. int8 codes).
+#[inline]
+pub fn locate_key<const CAP: usize>(
+    lut: &KernelLut<CAP>,
+    position: [f32; 3],
+) -> Result<VoxelKey, Rejection> {
+    VoxelKey::from_position(position, lut.inv_voxel_size()).map_err(|e| match e {
+        KeyError::NonFinite => Rejection::NonFinitePosition,
+        KeyError::OutOfRange => Rejection::KeyOutOfRange,
+    })
 }
 
 /// Whether every component is finite and the feature's norm is at most [`FEATURE_LIMIT`].

@@ -101,6 +101,9 @@ pub enum ConfigError {
     /// The on-device map stores per-voxel observation statistics, which cannot express the sub-voxel
     /// kernel (it weighs each point by its position inside its voxel).
     SubVoxelOnDevice,
+    /// The scale of int8 features must be finite and > 0, and small enough that no feature exceeds
+    /// [`crate::batch::FEATURE_LIMIT`].
+    Int8Scale,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -115,6 +118,9 @@ impl core::fmt::Display for ConfigError {
             Self::Window => "window radius must be between 1 and 16000 voxels",
             Self::SubVoxelOnDevice => {
                 "the on-device map needs the voxel-offset kernel (sub-voxel cells = 0)"
+            }
+            Self::Int8Scale => {
+                "int8 feature scale must be finite, > 0 and at most FEATURE_LIMIT / (127 sqrt(D))"
             }
         })
     }
@@ -189,6 +195,15 @@ impl MapConfig {
             prior,
             mode,
         })
+    }
+
+    /// The local map's window radius (m) for a sensor whose returns reach `sensor_range` metres: the range,
+    /// plus two voxels for the rounding of the point's and the sensor's voxel keys (the window is measured
+    /// between keys; a return outside it is refused), plus the kernel's reach, so the voxels a far return
+    /// updates through the kernel stay in the window while it is taken. A `const fn`, for a `static`
+    /// [`crate::Setup`].
+    pub const fn window_for_range(&self, sensor_range: f32) -> f32 {
+        sensor_range + (self.filter_size / 2 + 2) as f32 * self.voxel_size
     }
 
     /// Edge length of a voxel in metres.

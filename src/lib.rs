@@ -60,7 +60,7 @@
 //! They follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
 //! (voxel keys, poses) → [`batch`] (validating a point) → [`obs`] (what a voxel observed, and gathering
 //! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`]
-//! and [`sampling`] (uncertainty) →
+//! and [`sampling`] (uncertainty; [`info_gain`]: where to look next) →
 //! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
 //! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder) →
 //! [`mapper`] (all of it as one value). [`f32math`] holds the single-precision elementary functions the
@@ -79,6 +79,7 @@ pub mod decode;
 pub mod f32math;
 pub mod frame;
 pub mod inference;
+pub mod info_gain;
 pub mod kernel;
 pub mod key;
 pub mod local_map;
@@ -113,6 +114,7 @@ pub use stats::VoxelStats;
 
 // ----- uncertainty
 pub use inference::{Optimality, Spread};
+pub use info_gain::{view_score, voxel_gain, ScoreError};
 pub use sampling::{Sampler, SamplingMode};
 
 // ----- the base station's side of the link
@@ -121,6 +123,11 @@ pub use wire::{SessionConfig, SummaryCodec};
 
 // ----- open-vocabulary queries
 pub use decode::{Codebook, CodebookError, Pca};
+
+/// `docs/firmware.md` (the firmware author's guide), compiled so its examples run as doc tests.
+#[cfg(doctest)]
+#[doc = include_str!("../docs/firmware.md")]
+pub struct FirmwareGuide;
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;

@@ -16,7 +16,7 @@ use crate::batch::Rejection;
 use crate::config::{ConfigError, MapConfig};
 use crate::frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
 use crate::key::to_map_frame;
-use crate::local_map::LocalMap;
+use crate::local_map::{LocalMap, HOT_VOXELS};
 use crate::sink::Evicted;
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 use nalgebra::Isometry3;
@@ -35,6 +35,9 @@ pub struct Setup {
     /// Id of the PCA the features were compressed with ([`crate::wire::feature_space_id`]), or
     /// [`NO_FEATURE_SPACE`].
     pub feature_space: u32,
+    /// Scale of int8 features (a code c is the feature value `int8_scale` · c); 0 = the robot gives f32
+    /// features only. Sent in the session header.
+    pub int8_scale: f32,
 }
 
 impl Setup {
@@ -46,12 +49,23 @@ impl Setup {
             link,
             codec: SummaryCodec::DEFAULT,
             feature_space: NO_FEATURE_SPACE,
+            int8_scale: 0.0,
+        }
+    }
+
+    /// The same setup for a robot whose features are int8 codes: c stands for `scale` · c (e.g. an NPU's
+    /// output quantization scale). f32 features stay accepted too.
+    pub const fn with_int8_features(self, scale: f32) -> Self {
+        Self {
+            int8_scale: scale,
+            ..self
         }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.
     pub fn session(&self, dim: usize) -> SessionConfig {
         SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
+            .with_int8_scale(self.int8_scale)
     }
 }
 
@@ -87,15 +101,35 @@ impl<E> From<TickError<E>> for DrainError<E> {
 /// and frames of at most `N` bytes. `P` is [`crate::quant::packed_len`]`(D)` (checked at compile time).
 ///
 /// Large (≈ `CAP` × [`LocalMap::BYTES_PER_VOXEL`] + `QB` + 2 `N` bytes): place it in a `static`.
-pub struct Mapper<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-{
-    map: LocalMap<D, CAP, P>,
+pub struct Mapper<
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const QB: usize,
+    const N: usize,
+    const H: usize = HOT_VOXELS,
+> {
+    map: LocalMap<D, CAP, P, H>,
     encoder: FrameEncoder<D, QB, N>,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    Mapper<D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    > Mapper<D, CAP, P, QB, N, H>
 {
+    /// The mapper's RAM (its `static`): the map's [`LocalMap::RAM_BYTES`] (voxels, hot tier, kernel table)
+    /// plus the encoder (queue `QB`, two frame buffers of `N`, state), rounded to the alignment. Equals
+    /// `size_of::<Self>()` (tested), so a firmware checks its budget at compile time:
+    /// `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
+    pub const RAM_BYTES: usize = (LocalMap::<D, CAP, P, H>::RAM_BYTES
+        + core::mem::size_of::<FrameEncoder<D, QB, N>>())
+    .next_multiple_of(core::mem::align_of::<Self>());
+
     /// Unconfigured and all zero (a `static` of it lives in `.bss`): it takes no point and sends nothing
     /// until [`Self::configure`].
     #[allow(clippy::declare_interior_mutable_const)]
@@ -111,6 +145,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         self.map
             .configure(setup.map, setup.window_radius)
             .map_err(SetupError::Map)?;
+        if setup.int8_scale != 0.0 {
+            self.map
+                .set_int8_scale(setup.int8_scale)
+                .map_err(SetupError::Map)?;
+        }
         self.encoder
             .configure(setup.session(D), setup.link)
             .map_err(SetupError::Link)
@@ -118,7 +157,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
 
     /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
     /// behind are queued for the link). Add the frame's points through the returned [`SensorFrame`].
-    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N> {
+    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N, H> {
         let t = pose.translation.vector;
         self.map.move_window([t.x, t.y, t.z], &mut self.encoder);
         SensorFrame {
@@ -135,6 +174,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         features: &[[f32; D]],
     ) -> usize {
         self.begin_frame(pose).add_points(points, features)
+    }
+
+    /// [`Self::integrate`] for int8 features (see [`Setup::with_int8_features`]).
+    pub fn integrate_i8(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        codes: &[[i8; D]],
+    ) -> usize {
+        self.begin_frame(pose).add_points_i8(points, codes)
     }
 
     /// Spend up to `budget` bytes on the link: the session header when due, then the evicted voxels
@@ -168,13 +217,29 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
         Ok(evicted)
     }
 
+    /// How many evicted voxels (summaries) the encoder's queue holds with this session's codec: `QB` / the
+    /// bytes one queued summary takes (0 before [`Self::configure`]). Voxels beyond it stay in the map until
+    /// a tick sends some (back-pressure).
+    pub fn queue_capacity(&self) -> usize {
+        self.encoder.capacity()
+    }
+
     /// The map (voxels, posteriors, counters, rejections).
-    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
         &self.map
     }
     /// The encoder (queue, link statistics).
     pub fn encoder(&self) -> &FrameEncoder<D, QB, N> {
         &self.encoder
+    }
+    /// The information-gain score of a candidate view against the voxels held now
+    /// ([`crate::info_gain::view_score`]: `hits` sorted by key, each with its expected point count).
+    pub fn view_score(
+        &self,
+        hits: &[(crate::key::VoxelKey, f32)],
+    ) -> Result<f32, crate::info_gain::ScoreError> {
+        let (lut, prior) = (self.map.kernel(), self.map.prior());
+        crate::info_gain::view_score(lut, &self.map, prior.lambda, hits)
     }
 }
 
@@ -186,13 +251,20 @@ pub struct SensorFrame<
     const P: usize,
     const QB: usize,
     const N: usize,
+    const H: usize,
 > {
-    mapper: &'m mut Mapper<D, CAP, P, QB, N>,
+    mapper: &'m mut Mapper<D, CAP, P, QB, N, H>,
     pose: Isometry3<f32>,
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N: usize>
-    SensorFrame<'_, D, CAP, P, QB, N>
+impl<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    > SensorFrame<'_, D, CAP, P, QB, N, H>
 {
     /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
     /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in
@@ -210,8 +282,24 @@ impl<const D: usize, const CAP: usize, const P: usize, const QB: usize, const N:
             .add_point(to_map_frame(&self.pose, point), feature, &mut m.encoder)
     }
 
+    /// [`Self::add_points`] for int8 features: each code c stands for the setup's
+    /// [`Setup::int8_scale`] · c. The map keeps exact integer sums while a voxel is observed, so a
+    /// microcontroller without an FPU adds a point without float arithmetic on the features.
+    pub fn add_points_i8(&mut self, points: &[[f32; 3]], codes: &[[i8; D]]) -> usize {
+        let m = &mut self.mapper;
+        m.map
+            .add_points_i8(&self.pose, points, codes, &mut m.encoder)
+    }
+
+    /// [`Self::add_point`] for an int8 feature (a beam at a time).
+    pub fn add_point_i8(&mut self, point: [f32; 3], codes: &[i8; D]) -> Result<(), Rejection> {
+        let m = &mut self.mapper;
+        m.map
+            .add_point_i8(to_map_frame(&self.pose, point), codes, &mut m.encoder)
+    }
+
     /// The map, read-only (e.g. for a report between chunks).
-    pub fn map(&self) -> &LocalMap<D, CAP, P> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
         &self.mapper.map
     }
 }
@@ -368,5 +456,64 @@ mod tests {
             mapper.configure(&no_codec),
             Err(SetupError::Link(WireError::BadConfig))
         );
+    }
+
+    #[test]
+    fn ram_bytes_is_the_size_of_the_mapper() {
+        use core::mem::size_of;
+        assert_eq!(Small::RAM_BYTES, size_of::<Small>());
+        type Big = Mapper<64, 1228, { packed_len(64) }, 4096, 512>;
+        assert_eq!(Big::RAM_BYTES, size_of::<Big>());
+        type Lidar = Mapper<64, 900, { packed_len(64) }, 2048, 256, 96>;
+        assert_eq!(Lidar::RAM_BYTES, size_of::<Lidar>());
+        type Odd = Mapper<13, 77, { packed_len(13) }, 333, 129, 5>;
+        assert_eq!(Odd::RAM_BYTES, size_of::<Odd>());
+        // The hot tier is in the formula: one more hot entry costs its bytes.
+        type More = Mapper<64, 1228, { packed_len(64) }, 4096, 512, 33>;
+        assert_eq!(
+            More::RAM_BYTES - Big::RAM_BYTES,
+            LocalMap::<64, 1228, { packed_len(64) }>::BYTES_PER_HOT_VOXEL
+        );
+    }
+
+    #[test]
+    fn the_queue_capacity_is_in_summaries() {
+        let mut mapper = Box::new(Small::EMPTY);
+        assert_eq!(mapper.queue_capacity(), 0);
+        mapper.configure(&setup()).unwrap();
+        let n = mapper.queue_capacity();
+        assert!(n > 0);
+        // Filling the map beyond the queue: exactly `n` evictions are queued before the queue refuses.
+        for x in 0..40 {
+            frame(&mut mapper, x as f32 * 3.0);
+            if mapper.encoder().queued() == n {
+                break;
+            }
+        }
+        assert_eq!(mapper.encoder().queued(), n);
+        assert!(mapper.encoder().stats().refused > 0);
+    }
+
+    #[test]
+    fn the_window_covers_the_sensor_range() {
+        const W: f32 = MapConfig::DEFAULT.window_for_range(4.0);
+        static S: Setup = Setup::new(
+            MapConfig::DEFAULT,
+            MapConfig::DEFAULT.window_for_range(4.0),
+            EncoderSettings::new(1, 1),
+        );
+        assert!((W - 4.3).abs() < 1e-6);
+        let mut mapper = Box::new(Small::EMPTY);
+        mapper.configure(&S).unwrap();
+        // Returns at the full range in every direction, from a sensor anywhere in its voxel: all taken.
+        let mut frame = mapper.begin_frame(&Isometry3::from_parts(
+            Translation3::new(0.099, -0.001, 0.05),
+            UnitQuaternion::identity(),
+        ));
+        for i in 0..64 {
+            let a = i as f32 * core::f32::consts::TAU / 64.0;
+            let p = [4.0 * libm::cosf(a), 4.0 * libm::sinf(a), 0.0];
+            assert_eq!(frame.add_point(p, &[0.5; D]), Ok(()), "{p:?}");
+        }
     }
 }

@@ -90,6 +90,34 @@ impl<const D: usize> ObsStats<D> {
         self.merge_scaled(1.0, other);
     }
 
+    /// Merge observations kept as int8 code sums of scale `scale` ([`CodeSums`]): the same merge as
+    /// [`Self::merge`] of `sums.to_obs(scale)`, one dimension at a time (no 516-byte temporary).
+    pub fn merge_codes(&mut self, sums: &CodeSums<D>, scale: f32) {
+        if sums.count == 0 {
+            return;
+        }
+        let k_bar = sums.count as f32;
+        let inv_n = 1.0 / k_bar;
+        let scale2_over_n = scale * scale * inv_n;
+        let total = self.count + k_bar;
+        let gain = k_bar / total;
+        let cross = self.count * gain;
+        for i in 0..D {
+            let (sum, sq) = (sums.sum[i], sums.squares[i]);
+            let y_bar = scale * (sum as f32 * inv_n);
+            let s_bar = scatter_numerator(sums.count, sum, sq) as f32 * scale2_over_n;
+            crate::stats::update_dim(
+                &mut self.mean[i],
+                &mut self.scatter[i],
+                gain,
+                cross,
+                y_bar,
+                s_bar,
+            );
+        }
+        self.count = total;
+    }
+
     /// The posterior of a voxel whose (gathered) observations these are, under `prior`.
     pub fn posterior(&self, prior: &Prior) -> VoxelStats<D> {
         let mut post = VoxelStats::from_prior(prior);
@@ -105,6 +133,112 @@ impl<const D: usize> ObsStats<D> {
             && self.mean.iter().all(|v| v.is_finite())
             && self.scatter.iter().all(|v| v.is_finite() && *v >= 0.0)
     }
+}
+
+/// Largest int8 feature code magnitude: codes are −127..=127 (−128 is refused, so the code range is
+/// symmetric and a code's negation is a code).
+pub const CODE_MAX: i8 = 127;
+
+/// Points one [`CodeSums`] may hold: up to it, n·Σc² and (Σc)² stay below 2³¹ (255² · 127² · 255 <
+/// 1.1·10⁹), so the scatter's numerator is formed in i32 — no 64-bit arithmetic, which a Cortex-M0 or an
+/// RV32 does in library calls. A voxel observed longer cools (one merge per 255 points).
+pub const CODE_SUMS_MAX_COUNT: u32 = 255;
+
+/// What was observed in one voxel from int8 features (y = scale · c), in exact integers: the point count n
+/// and per dimension Σc and Σc² of the codes.
+///
+/// Why integers: an accelerator hands the map int8 codes, and a microcontroller without an FPU adds an
+/// integer in one instruction where a float costs a library call. Integer sums are exact, so the raw form
+/// S = Σc² − (Σc)²/n cannot cancel (the failure of raw f32 sums that [`ObsStats`] avoids with Welford's
+/// update): it is formed once, in i64, when the sums are turned into [`ObsStats`] ([`Self::to_obs`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CodeSums<const D: usize> {
+    /// n: points added (at most [`CODE_SUMS_MAX_COUNT`]).
+    pub count: u32,
+    /// Σc per dimension.
+    pub sum: [i32; D],
+    /// Σc² per dimension.
+    pub squares: [u32; D],
+}
+
+impl<const D: usize> CodeSums<D> {
+    /// No point.
+    pub const EMPTY: Self = Self {
+        count: 0,
+        sum: [0; D],
+        squares: [0; D],
+    };
+
+    /// Whether it can take another point ([`CODE_SUMS_MAX_COUNT`]).
+    #[inline]
+    pub fn is_full(&self) -> bool {
+        self.count >= CODE_SUMS_MAX_COUNT
+    }
+
+    /// Add one point's codes (callers check [`code_in_range`] and [`Self::is_full`]): two integer
+    /// additions and a multiply per dimension.
+    #[inline]
+    pub fn add(&mut self, codes: &[i8; D]) {
+        self.count = self.count.wrapping_add(1);
+        // Wrapping only so that no overflow check is linked: with n ≤ 255 nothing can wrap.
+        for ((s, q), &c) in self.sum.iter_mut().zip(&mut self.squares).zip(codes) {
+            let c = i32::from(c);
+            *s = s.wrapping_add(c);
+            *q = q.wrapping_add(c.wrapping_mul(c) as u32);
+        }
+    }
+
+    /// The same observations as f32 statistics of y = scale · c: m = scale · Σc / n,
+    /// S = scale² · (n Σc² − (Σc)²) / n with the numerator exact in i32 (rounded once to f32).
+    pub fn to_obs(&self, scale: f32) -> ObsStats<D> {
+        let mut out = ObsStats::EMPTY;
+        self.write_obs(scale, &mut out);
+        out
+    }
+
+    /// [`Self::to_obs`] into existing statistics (no 516-byte temporary on the device stack).
+    pub fn write_obs(&self, scale: f32, out: &mut ObsStats<D>) {
+        if self.count == 0 {
+            *out = ObsStats::EMPTY;
+            return;
+        }
+        let n = self.count as f32;
+        let inv_n = 1.0 / n;
+        let scale2_over_n = scale * scale * inv_n;
+        out.count = n;
+        for (((m, s), &sum), &sq) in out
+            .mean
+            .iter_mut()
+            .zip(&mut out.scatter)
+            .zip(&self.sum)
+            .zip(&self.squares)
+        {
+            *m = scale * (sum as f32 * inv_n);
+            *s = scatter_numerator(self.count, sum, sq) as f32 * scale2_over_n;
+        }
+    }
+}
+
+/// n·Σc² − (Σc)² = n·S in code units, exact: with n ≤ [`CODE_SUMS_MAX_COUNT`] both terms are below 2³¹
+/// (wrapping arithmetic only so that no overflow check is linked; it cannot wrap). Never negative.
+#[inline(always)]
+fn scatter_numerator(n: u32, sum: i32, squares: u32) -> u32 {
+    n.wrapping_mul(squares)
+        .wrapping_sub(sum.wrapping_mul(sum) as u32)
+}
+
+/// Whether every code is within ±[`CODE_MAX`] (−128 is not). Four codes at a time: a byte is 0x80 exactly
+/// when the same byte of `w ^ 0x80808080` is zero, found by the classic has-zero-byte test.
+#[inline]
+pub fn code_in_range<const D: usize>(codes: &[i8; D]) -> bool {
+    let chunks = codes.chunks_exact(4);
+    let tail_ok = chunks.remainder().iter().all(|&c| c != i8::MIN);
+    let mut bad = 0u32;
+    for c in chunks {
+        let w = u32::from_le_bytes([c[0] as u8, c[1] as u8, c[2] as u8, c[3] as u8]) ^ 0x8080_8080;
+        bad |= w.wrapping_sub(0x0101_0101) & !w & 0x8080_8080;
+    }
+    bad == 0 && tail_ok
 }
 
 /// Read access to a map of per-voxel observation statistics.

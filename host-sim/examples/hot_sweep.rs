@@ -2,9 +2,9 @@
 //!
 //! A point accumulates into its voxel's hot f32 statistics; a voxel is quantized (decoded, merged,
 //! re-encoded) only when it cools — when another voxel needs its hot entry. This runs the firmware
-//! self-test's 4,096-point depth frames (`latentbki_selftest::SELF_TEST[1]`; a point updates one voxel whatever f is)
-//! through maps that differ only in `H` and prints how many voxels cooled per 1,000 points, and the hot
-//! tier's size. Deterministic: counts, not timings.
+//! self-test's sensor patterns — 4,096-point depth frames (`latentbki_selftest::SELF_TEST[1]`; a point
+//! updates one voxel whatever f is), the 8×8 ToF and the 2D scanning LiDAR — through maps that differ only
+//! in `H` and prints how many voxels cooled per 1,000 points, and the hot tier's size. Deterministic: counts, not timings.
 //! Run: `cargo run --release -p host-sim --example hot_sweep`.
 
 use latentbki::{packed_len, to_map_frame, Evicted, LocalMap, ObsStats, SinkFull};
@@ -41,17 +41,30 @@ fn cooled<const H: usize>(s: usize) -> (u32, u32) {
 
 fn row<const H: usize>() {
     let hot_bytes = core::mem::size_of::<ObsStats<D>>() + 20;
-    let (points, c) = cooled::<H>(1);
-    println!(
-        "| {H} | {:.1} KiB | {c} | {:.0} |",
-        (H * hot_bytes) as f32 / 1024.0,
+    let per_k = |s: usize| {
+        let (points, c) = cooled::<H>(s);
         1000.0 * c as f32 / points.max(1) as f32
+    };
+    println!(
+        "| {H} | {:.1} KiB | {:.0} | {:.0} | {:.0} |",
+        (H * hot_bytes) as f32 / 1024.0,
+        per_k(1),
+        per_k(named("tof_f3")),
+        per_k(named("lidar_f3")),
     );
 }
 
+/// The self-test scenario of that name.
+fn named(name: &str) -> usize {
+    SELF_TEST
+        .iter()
+        .position(|s| s.name == name)
+        .expect("a self-test scenario")
+}
+
 fn main() {
-    println!("| H | hot tier | voxels cooled (8 × 4,096 points) | cooled per 1,000 points |");
-    println!("|---|---|---|---|");
+    println!("| H | hot tier | cooled per 1,000 points: depth frames | 8×8 ToF | 2D LiDAR |");
+    println!("|---|---|---|---|---|");
     row::<8>();
     row::<16>();
     row::<32>();

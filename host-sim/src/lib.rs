@@ -10,13 +10,11 @@ pub mod eval;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;
-pub mod obs_map;
 pub mod order;
-pub mod png_io;
 pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]
 pub mod text_encoder;
 
-pub use obs_map::ObsMap;
+pub use latentbki_station::{obs_map, png_io, ObsMap};
 pub use reference_map::ReferenceMap;

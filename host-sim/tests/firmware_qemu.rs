@@ -234,7 +234,17 @@ fn firmware_in_qemu_streams_the_map_the_host_twin_computes() {
     // The same global maps, decoded.
     let (fw_maps, frames, finals) = decode(&uart);
     let (twin_maps, _, _) = decode(&twin.bytes);
-    assert_eq!(fw_maps.len(), 2, "two configurations (f = 1 and f = 3)");
+    // One configuration per (filter size, feature type) in the self-test: its session headers.
+    let configs: std::collections::BTreeSet<u32> = SELF_TEST
+        .iter()
+        .map(|sc| sc.setup().unwrap().session(D).id())
+        .collect();
+    assert_eq!(
+        fw_maps.len(),
+        configs.len(),
+        "f = 1, f = 3, f = 3 with int8 features"
+    );
+    assert_eq!(configs.len(), 3);
     for (id, (config, fw)) in &fw_maps {
         let (_, tw) = &twin_maps[id];
         assert_eq!(fw.len(), tw.len());

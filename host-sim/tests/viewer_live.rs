@@ -91,7 +91,14 @@ struct Station {
 
 fn start_station(db: &Path, pca: &Path, extra: &[&std::ffi::OsStr]) -> Station {
     let mut child = Command::new(exe())
-        .args(["base-station", "-", "--view", "127.0.0.1:0", "--commit-ms", "20"])
+        .args([
+            "base-station",
+            "-",
+            "--view",
+            "127.0.0.1:0",
+            "--commit-ms",
+            "20",
+        ])
         .arg("--map")
         .arg(db)
         .arg("--pca")
@@ -144,7 +151,11 @@ fn stored(path: &Path) -> GlobalMap<D> {
 fn run(args: &[&std::ffi::OsStr]) -> String {
     let out = Command::new(exe()).args(args).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     text
 }
 
@@ -216,7 +227,14 @@ fn expectations(db: &Path, pca: &Path, dir: &Path) -> String {
     let class_counts: Vec<usize> = listing
         .lines()
         .filter(|l| l.starts_with("  ") && l.ends_with(" voxels"))
-        .map(|l| l.rsplit(": ").next().unwrap().trim_end_matches(" voxels").parse().unwrap())
+        .map(|l| {
+            l.rsplit(": ")
+                .next()
+                .unwrap()
+                .trim_end_matches(" voxels")
+                .parse()
+                .unwrap()
+        })
         .collect();
     let top_keys: Vec<String> = listing
         .lines()
@@ -314,9 +332,17 @@ fn live_view_matches_map_query_for_early_and_late_clients_and_recordings_replay(
         .lines()
         .find(|l| l.starts_with("viewer: ") && l.contains(" voxels in the scene"))
         .unwrap();
-    let n: usize = line["viewer: ".len()..].split(' ').next().unwrap().parse().unwrap();
+    let n: usize = line["viewer: ".len()..]
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
     assert_eq!(n, stored(&db).len(), "{line}");
-    assert!(summary.contains("viewer: frame arrival to view update: median"), "{summary}");
+    assert!(
+        summary.contains("viewer: frame arrival to view update: median"),
+        "{summary}"
+    );
     if mcap_ready() {
         println!("{}", mcap_check(&rec, &expect));
         let export = dir.path().join("export.mcap");
@@ -352,7 +378,11 @@ fn raw_client(port: u16) -> TcpStream {
         s.read_exact(&mut b).unwrap();
         head.push(b[0]);
     }
-    assert!(head.starts_with(b"HTTP/1.1 101"), "{}", String::from_utf8_lossy(&head));
+    assert!(
+        head.starts_with(b"HTTP/1.1 101"),
+        "{}",
+        String::from_utf8_lossy(&head)
+    );
     s
 }
 
@@ -408,10 +438,17 @@ fn bad_and_stalled_clients_are_refused_or_ignored_and_ingest_is_unchanged() {
         .collect::<Vec<_>>()
         .join(",");
     let sub = format!("{{\"op\":\"subscribe\",\"subscriptions\":[{subscribe}]}}");
-    stalled.write_all(&frame(1, sub.len() as u64, sub.as_bytes())).unwrap();
+    stalled
+        .write_all(&frame(1, sub.len() as u64, sub.as_bytes()))
+        .unwrap();
     let mut bad = raw_client(busy.port);
-    for text in ["this is not json", "{\"op\":\"nonsense\"}", "{\"op\":\"subscribe\",\"subscriptions\":[{\"id\":1,\"channelId\":4242}]}"] {
-        bad.write_all(&frame(1, text.len() as u64, text.as_bytes())).unwrap();
+    for text in [
+        "this is not json",
+        "{\"op\":\"nonsense\"}",
+        "{\"op\":\"subscribe\",\"subscriptions\":[{\"id\":1,\"channelId\":4242}]}",
+    ] {
+        bad.write_all(&frame(1, text.len() as u64, text.as_bytes()))
+            .unwrap();
     }
     // A frame announcing 64 MiB: refused from its header, the connection closed.
     let mut big = raw_client(busy.port);
@@ -421,7 +458,9 @@ fn bad_and_stalled_clients_are_refused_or_ignored_and_ingest_is_unchanged() {
     let busy_rss = rss_kib(busy.child.id());
     let busy_out = busy.finish();
     drop((stalled, bad, big));
-    println!("quiet: {quiet_out}\nbusy: {busy_out}\npeak RSS quiet {quiet_rss} KiB, busy {busy_rss} KiB");
+    println!(
+        "quiet: {quiet_out}\nbusy: {busy_out}\npeak RSS quiet {quiet_rss} KiB, busy {busy_rss} KiB"
+    );
     // The database is the same map, bit for bit, with or without those clients.
     assert!(stored(&quiet_db) == stored(&busy_db));
     let refused: u64 = busy_out
@@ -431,7 +470,10 @@ fn bad_and_stalled_clients_are_refused_or_ignored_and_ingest_is_unchanged() {
         .trim()
         .parse()
         .unwrap();
-    assert!(refused >= 4, "garbage, unknown op, unknown channel, oversized: {busy_out}");
+    assert!(
+        refused >= 4,
+        "garbage, unknown op, unknown channel, oversized: {busy_out}"
+    );
     // The stalled client's queue is bounded (8 messages): memory stays near the quiet run's.
     assert!(
         busy_rss < quiet_rss + 64 * 1024,

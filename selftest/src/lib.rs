@@ -165,6 +165,29 @@ impl Room {
         ],
     };
 
+    /// A 4 m × 4 m room, 2.5 m high, opening at its far side into a 1.4 m wide corridor 6 m long (the
+    /// corridor's side wall is the face of a solid block), with a table and a cabinet in the room.
+    pub const WITH_CORRIDOR: Self = Self {
+        size: [10.0, 4.0, 2.5],
+        blocks: [
+            Block {
+                lo: [4.0, 0.0, 0.0],
+                hi: [10.0, 2.6, 2.5],
+                category: WALL,
+            },
+            Block {
+                lo: [0.9, 0.4, 0.0],
+                hi: [1.9, 1.2, 0.75],
+                category: 3,
+            },
+            Block {
+                lo: [3.4, 0.2, 0.0],
+                hi: [3.95, 1.3, 1.8],
+                category: 4,
+            },
+        ],
+    };
+
     /// First surface hit by the ray `origin + t·dir` (origin inside the room, not inside furniture):
     /// distance t and category.
     pub fn cast(&self, origin: [f32; 3], dir: [f32; 3]) -> (f32, u8) {
@@ -211,10 +234,22 @@ impl Room {
     }
 }
 
-/// A depth sensor: `width × height` zones over a rectangular field of view, each returning a range along
-/// its zone's centre ray. Sensor frame: x right, y down, z forward.
+/// How a sensor's zones are laid out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// A rectangular field of view (a depth camera, a multizone ToF): `width × height` zones.
+    Frustum,
+    /// A 2D scanning LiDAR: `width` beams evenly over a full turn in the sensor's x–z plane (level when the
+    /// sensor is), one revolution per frame.
+    Revolution,
+}
+
+/// A range sensor: `width × height` zones, each returning a range along its zone's centre ray. Sensor
+/// frame: x right, y down, z forward.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DepthSensor {
+    /// How the zones are laid out.
+    pub layout: Layout,
     /// Zones per row.
     pub width: u16,
     /// Rows.
@@ -232,6 +267,7 @@ pub struct DepthSensor {
 impl DepthSensor {
     /// An 8×8 multizone time-of-flight sensor like the VL53L5CX: 45° × 45°, 4 m, ±1 cm.
     pub const TOF_8X8: Self = Self {
+        layout: Layout::Frustum,
         width: 8,
         height: 8,
         tan_half_x: 0.414_213_57,
@@ -243,12 +279,24 @@ impl DepthSensor {
     /// A depth camera subsampled to 64×64 (4,096 points a frame) over the central 30° × 30° of its view,
     /// 6 m, ±5 mm.
     pub const DEPTH_64X64: Self = Self {
+        layout: Layout::Frustum,
         width: 64,
         height: 64,
         tan_half_x: 0.267_949_2,
         tan_half_y: 0.267_949_2,
         max_range: 6.0,
         range_noise: 0.005,
+    };
+
+    /// A 2D scanning LiDAR (like an RPLIDAR A1 at 10 Hz): 360 beams per revolution, 8 m, ±1 cm.
+    pub const LIDAR_360: Self = Self {
+        layout: Layout::Revolution,
+        width: 360,
+        height: 1,
+        tan_half_x: 0.0,
+        tan_half_y: 0.0,
+        max_range: 8.0,
+        range_noise: 0.01,
     };
 
     /// Zones per frame.
@@ -259,6 +307,11 @@ impl DepthSensor {
     /// Unit direction of a zone's centre ray in the sensor frame (zones row by row).
     pub fn ray(&self, zone: u32) -> [f32; 3] {
         let (w, h) = (u32::from(self.width.max(1)), u32::from(self.height.max(1)));
+        if self.layout == Layout::Revolution {
+            let turn = ((zone % w) as f32 + 0.5) / w as f32;
+            let (s, c) = sin_cos(2.0 * core::f32::consts::PI * turn);
+            return [s, 0.0, c];
+        }
         let (col, row) = (zone % w, (zone / w) % h);
         let x = ((col as f32 + 0.5) / w as f32 * 2.0 - 1.0) * self.tan_half_x;
         let y = ((row as f32 + 0.5) / h as f32 * 2.0 - 1.0) * self.tan_half_y;
@@ -309,6 +362,17 @@ pub struct Observation {
     pub category: u8,
 }
 
+/// Where the sensor goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Path {
+    /// Circling the room's free middle at 1.2 m height (radius 0.5 m), looking outwards and sweeping its
+    /// pitch, `frames_per_turn` frames a turn ([`Room::DEFAULT`]).
+    Circle,
+    /// A robot base at 0.3 m height with a level sensor, driving from the room's corner across the room and
+    /// down the corridor of [`Room::WITH_CORRIDOR`] in `frames_per_turn` frames (then standing still).
+    RoomAndCorridor,
+}
+
 /// The room, the sensor on its trajectory, and the noise: everything a run generates.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scene {
@@ -320,8 +384,10 @@ pub struct Scene {
     pub seed: u32,
     /// Standard deviation of the feature noise, per component.
     pub feature_noise: f32,
-    /// Frames per turn of the trajectory.
+    /// Frames per turn of the trajectory (per traversal for [`Path::RoomAndCorridor`]).
     pub frames_per_turn: u32,
+    /// The trajectory.
+    pub path: Path,
 }
 
 impl Scene {
@@ -333,12 +399,29 @@ impl Scene {
             seed,
             feature_noise: 0.1,
             frames_per_turn: 48,
+            path: Path::Circle,
+        }
+    }
+
+    /// A 2D LiDAR on a robot driving through a room and down a corridor ([`Path::RoomAndCorridor`]) in
+    /// `frames` revolutions.
+    pub const fn room_and_corridor(sensor: DepthSensor, seed: u32, frames: u32) -> Self {
+        Self {
+            room: Room::WITH_CORRIDOR,
+            sensor,
+            seed,
+            feature_noise: 0.1,
+            frames_per_turn: frames,
+            path: Path::RoomAndCorridor,
         }
     }
 
     /// The sensor's view at a frame: it circles the room's free middle at 1.2 m height (radius 0.5 m),
     /// looking outwards and sweeping its pitch between −0.55 and 0.35 rad.
     pub fn view(&self, frame: u32) -> View {
+        if self.path == Path::RoomAndCorridor {
+            return self.drive(frame);
+        }
         let turn =
             (frame % self.frames_per_turn.max(1)) as f32 / self.frames_per_turn.max(1) as f32;
         let phase = 2.0 * core::f32::consts::PI * turn;
@@ -360,6 +443,29 @@ impl Scene {
         View {
             origin,
             axes: [right, down, forward],
+        }
+    }
+
+    /// [`Path::RoomAndCorridor`]: from (1.0, 2.0) to (3.2, 3.3), then along the corridor to (9.5, 3.3), at
+    /// constant speed; the sensor level, looking along the way (x forward, y left in the map).
+    fn drive(&self, frame: u32) -> View {
+        const A: [f32; 2] = [1.0, 2.0];
+        const B: [f32; 2] = [3.2, 3.3];
+        const C: [f32; 2] = [9.5, 3.3];
+        let len_ab = libm::sqrtf((B[0] - A[0]) * (B[0] - A[0]) + (B[1] - A[1]) * (B[1] - A[1]));
+        let len_bc = C[0] - B[0];
+        let t = (frame as f32 / self.frames_per_turn.max(1) as f32).min(1.0) * (len_ab + len_bc);
+        let (origin, dir) = if t < len_ab {
+            let u = [(B[0] - A[0]) / len_ab, (B[1] - A[1]) / len_ab];
+            ([A[0] + u[0] * t, A[1] + u[1] * t], u)
+        } else {
+            ([B[0] + (t - len_ab), B[1]], [1.0, 0.0])
+        };
+        let forward = [dir[0], dir[1], 0.0];
+        let right = [dir[1], -dir[0], 0.0];
+        View {
+            origin: [origin[0], origin[1], 0.3],
+            axes: [right, [0.0, 0.0, -1.0], forward],
         }
     }
 
@@ -408,6 +514,8 @@ pub struct Chunk<const D: usize, const K: usize> {
     pub points: [[f32; 3]; K],
     /// Their features.
     pub features: [[f32; D]; K],
+    /// Their features as int8 codes (scenarios with int8 features).
+    pub codes: [[i8; D]; K],
 }
 
 impl<const D: usize, const K: usize> Chunk<D, K> {
@@ -415,7 +523,17 @@ impl<const D: usize, const K: usize> Chunk<D, K> {
     pub const ZERO: Self = Self {
         points: [[0.0; 3]; K],
         features: [[0.0; D]; K],
+        codes: [[0; D]; K],
     };
+}
+
+/// int8 codes of a feature at `scale` (what an accelerator with that output scale hands the map): each
+/// component rounded to the nearest code, clamped to ±127.
+pub fn quantize<const D: usize>(feature: &[f32; D], scale: f32, codes: &mut [i8; D]) {
+    let inv = 1.0 / scale;
+    for (c, &v) in codes.iter_mut().zip(feature) {
+        *c = libm::roundf(v * inv).clamp(-127.0, 127.0) as i8;
+    }
 }
 
 /// What [`integrate_frame`] did.
@@ -429,7 +547,7 @@ pub struct FrameReport {
 }
 
 /// Generate frame `frame` of `scene` in chunks of `K` points and integrate it into `mapper` as one sensor
-/// frame ([`Mapper::begin_frame`], then each chunk). The map's work — and only it — runs between
+/// frame, as f32 features or (`int8_scale` > 0) as int8 codes of that scale ([`Mapper::begin_frame`], then each chunk). The map's work — and only it — runs between
 /// `probe.start()` and `probe.stop()` (once for the window move, once per chunk).
 pub fn integrate_frame<
     const D: usize,
@@ -437,12 +555,14 @@ pub fn integrate_frame<
     const P: usize,
     const QB: usize,
     const N: usize,
+    const H: usize,
     const K: usize,
     M: Probe,
 >(
     scene: &Scene,
     frame: u32,
-    mapper: &mut Mapper<D, CAP, P, QB, N>,
+    int8_scale: f32,
+    mapper: &mut Mapper<D, CAP, P, QB, N, H>,
     chunk: &mut Chunk<D, K>,
     probe: &mut M,
 ) -> FrameReport {
@@ -459,6 +579,9 @@ pub fn integrate_frame<
         while n < K && zone < zones {
             if let Some(o) = scene.observe(&view, frame, zone, &mut chunk.features[n]) {
                 chunk.points[n] = o.point;
+                if int8_scale > 0.0 {
+                    quantize(&chunk.features[n], int8_scale, &mut chunk.codes[n]);
+                }
                 n += 1;
             }
             zone += 1;
@@ -466,7 +589,11 @@ pub fn integrate_frame<
         report.points += n as u32;
         probe.start();
         // Refusals are counted by the map (`rejections`).
-        batch.add_points(&chunk.points[..n], &chunk.features[..n]);
+        if int8_scale > 0.0 {
+            batch.add_points_i8(&chunk.points[..n], &chunk.codes[..n]);
+        } else {
+            batch.add_points(&chunk.points[..n], &chunk.features[..n]);
+        }
         probe.stop();
     }
     report.integrated = batch.map().counters().points.wrapping_sub(before);
@@ -476,6 +603,8 @@ pub fn integrate_frame<
 /// One self-test run: a scene, how many frames, the map and the link.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scenario {
+    /// What it measures, for reports (one word, no spaces).
+    pub name: &'static str,
     /// What the sensor sees.
     pub scene: Scene,
     /// Frames integrated.
@@ -488,6 +617,8 @@ pub struct Scenario {
     pub session: u32,
     /// Link bytes per frame (e.g. 2,048 B: 460,800 Bd at 20 frames/s).
     pub tick_budget: usize,
+    /// Scale of int8 features ([`Setup::with_int8_features`]); 0 = f32 features.
+    pub int8_scale: f32,
 }
 
 /// Robot id the self-test streams as.
@@ -506,41 +637,86 @@ pub const SELF_TEST_FRAME_BYTES: usize = 512;
 
 /// The firmware self-test: the 8×8 ToF for three turns (f = 1), then 4,096-point depth frames at f = 1
 /// and f = 3 (the instruction-count benchmark), then half a turn of depth frames with a window that holds
-/// the whole room (f = 3): the map fills, so the run measures how many voxels a full map answers.
-pub const SELF_TEST: [Scenario; 4] = [
+/// the whole room (f = 3): the map fills, so the run measures how many voxels a full map answers; then the
+/// sensor patterns at f = 3 for the instruction counts: the depth frames with int8 features, the 8×8 ToF,
+/// and a 2D scanning LiDAR (360 beams per revolution, 240 revolutions: 24 s at 10 Hz) driving through a room
+/// and down a corridor.
+pub const SELF_TEST: [Scenario; 7] = [
     Scenario {
+        name: "tof_f1",
         scene: Scene::new(DepthSensor::TOF_8X8, 0x70F),
         frames: 144,
         filter_size: 1,
         window_radius: 2.0,
         session: 1,
         tick_budget: 2048,
+        int8_scale: 0.0,
     },
     Scenario {
+        name: "depth_f1",
         scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD1),
         frames: 8,
         filter_size: 1,
         window_radius: 2.5,
         session: 2,
         tick_budget: 8192,
+        int8_scale: 0.0,
     },
     Scenario {
+        name: "depth_f3",
         scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD3),
         frames: 8,
         filter_size: 3,
         window_radius: 2.5,
         session: 3,
         tick_budget: 8192,
+        int8_scale: 0.0,
     },
     Scenario {
+        name: "full_map",
         scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD4),
         frames: 24,
         filter_size: 3,
         window_radius: 4.0,
         session: 4,
         tick_budget: 8192,
+        int8_scale: 0.0,
+    },
+    Scenario {
+        name: "depth_f3_i8",
+        scene: Scene::new(DepthSensor::DEPTH_64X64, 0xD3),
+        frames: 8,
+        filter_size: 3,
+        window_radius: 2.5,
+        session: 5,
+        tick_budget: 8192,
+        int8_scale: SELF_TEST_INT8_SCALE,
+    },
+    Scenario {
+        name: "tof_f3",
+        scene: Scene::new(DepthSensor::TOF_8X8, 0x70F),
+        frames: 144,
+        filter_size: 3,
+        window_radius: 2.0,
+        session: 6,
+        tick_budget: 2048,
+        int8_scale: 0.0,
+    },
+    Scenario {
+        name: "lidar_f3",
+        scene: Scene::room_and_corridor(DepthSensor::LIDAR_360, 0x11DA, 240),
+        frames: 240,
+        filter_size: 3,
+        window_radius: 4.0,
+        session: 7,
+        tick_budget: 2048,
+        int8_scale: 0.0,
     },
 ];
+
+/// Scale of the self-test's int8 features: codes of ±127 reach ±0.635, beyond the codebook's ±1/8 plus
+/// five standard deviations of its 0.1 noise.
+pub const SELF_TEST_INT8_SCALE: f32 = 0.005;
 
 impl Scenario {
     /// The map configuration.
@@ -555,13 +731,18 @@ impl Scenario {
     }
 
     /// The mapper's setup: this map, robot [`SELF_TEST_ROBOT`] with the scenario's session, default codec,
-    /// no PCA.
+    /// no PCA, and the int8 scale if any.
     pub fn setup(&self) -> Result<Setup, ConfigError> {
-        Ok(Setup::new(
+        let setup = Setup::new(
             self.map_config()?,
             self.window_radius,
             EncoderSettings::new(SELF_TEST_ROBOT, self.session),
-        ))
+        );
+        Ok(if self.int8_scale > 0.0 {
+            setup.with_int8_features(self.int8_scale)
+        } else {
+            setup
+        })
     }
 
     /// Clear `mapper` and configure it for this scenario (in place).
@@ -571,9 +752,10 @@ impl Scenario {
         const P: usize,
         const QB: usize,
         const N: usize,
+        const H: usize,
     >(
         &self,
-        mapper: &mut Mapper<D, CAP, P, QB, N>,
+        mapper: &mut Mapper<D, CAP, P, QB, N, H>,
     ) -> Result<(), SetupError> {
         mapper.configure(&self.setup().map_err(SetupError::Map)?)
     }
@@ -609,16 +791,17 @@ pub fn run<
     const P: usize,
     const QB: usize,
     const N: usize,
+    const H: usize,
     const K: usize,
     W,
     M,
 >(
     scenario: &Scenario,
-    mapper: &mut Mapper<D, CAP, P, QB, N>,
+    mapper: &mut Mapper<D, CAP, P, QB, N, H>,
     chunk: &mut Chunk<D, K>,
     w: &mut W,
     probe: &mut M,
-    mut on_frame: impl FnMut(u32, &FrameReport, &LocalMap<D, CAP, P>),
+    mut on_frame: impl FnMut(u32, &FrameReport, &LocalMap<D, CAP, P, H>),
 ) -> Result<RunReport, RunError<W::Error>>
 where
     W: embedded_io::Write,
@@ -632,7 +815,14 @@ where
     }
     let mut report = RunReport::default();
     for frame in 0..scenario.frames {
-        let f = integrate_frame(&scenario.scene, frame, mapper, chunk, probe);
+        let f = integrate_frame(
+            &scenario.scene,
+            frame,
+            scenario.int8_scale,
+            mapper,
+            chunk,
+            probe,
+        );
         report.points += f.points;
         report.integrated += f.integrated;
         report.peak_voxels = report.peak_voxels.max(mapper.map().len() as u32);
@@ -777,6 +967,46 @@ mod tests {
         );
     }
 
+    #[test]
+    fn lidar_drives_through_the_room_and_down_the_corridor() {
+        let sc = SELF_TEST.iter().find(|s| s.name == "lidar_f3").unwrap();
+        let scene = sc.scene;
+        let mut f = [0.0f32; 64];
+        let (first, last) = (scene.view(0), scene.view(sc.frames - 1));
+        assert!(
+            first.origin[0] < 1.5 && last.origin[0] > 9.0,
+            "{first:?} {last:?}"
+        );
+        for frame in [0, sc.frames / 2, sc.frames - 1] {
+            let view = scene.view(frame);
+            let pose = view.pose();
+            let mut returns = 0;
+            for zone in 0..scene.sensor.zones() {
+                // Beams down the corridor's length may reach beyond the 8 m range.
+                let Some(o) = scene.observe(&view, frame, zone, &mut f) else {
+                    continue;
+                };
+                returns += 1;
+                let p = to_map_frame(&pose, o.point);
+                assert!((p[2] - 0.3).abs() < 1e-4, "a level scan: {p:?}");
+                assert_eq!(CategoryVectors::<64>::classify(&f), Some(o.category));
+            }
+            assert!(returns > 340, "frame {frame}: {returns} returns");
+        }
+        // In the corridor, the nearest wall is the corridor's (1.4 m wide).
+        let view = scene.view(sc.frames - 10);
+        let left = scene.room.cast(view.origin, [0.0, 1.0, 0.0]).0;
+        let right = scene.room.cast(view.origin, [0.0, -1.0, 0.0]).0;
+        assert!((left + right - 1.4).abs() < 1e-5);
+    }
+
+    #[test]
+    fn quantize_rounds_and_clamps() {
+        let mut c = [0i8; 4];
+        quantize(&[0.0124, -0.0126, 1.0, -1.0], 0.005, &mut c);
+        assert_eq!(c, [2, -3, 127, -127]);
+    }
+
     /// Collects the link's bytes.
     struct Bytes(Vec<u8>);
     impl embedded_io::ErrorType for Bytes {
@@ -806,10 +1036,10 @@ mod tests {
             for frame in 0..20 {
                 reports.push(if chunk_points == 5 {
                     let mut c = Box::new(Chunk5::ZERO);
-                    integrate_frame(&scene, frame, &mut mapper, &mut c, &mut ())
+                    integrate_frame(&scene, frame, 0.0, &mut mapper, &mut c, &mut ())
                 } else {
                     let mut c = Box::new(Chunk64::ZERO);
-                    integrate_frame(&scene, frame, &mut mapper, &mut c, &mut ())
+                    integrate_frame(&scene, frame, 0.0, &mut mapper, &mut c, &mut ())
                 });
                 mapper.tick(&mut out, 2048).unwrap();
             }

@@ -130,6 +130,7 @@ const NO_SESSION: SessionConfig = SessionConfig {
         psi_blocks: 0,
     },
     feature_space: 0,
+    int8_scale: 0.0,
 };
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {

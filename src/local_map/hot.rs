@@ -4,8 +4,71 @@
 
 use super::{Hot, LocalMap, REFERENCED};
 use crate::key::VoxelKey;
-use crate::obs::ObsStats;
-use crate::quant::QuantVoxel;
+use crate::obs::{CodeSums, ObsStats};
+
+/// A hot voxel's new points: f32 features by Welford's update, int8 codes as exact integer sums (the
+/// first point decides; a point of the other kind turns the sums into f32 statistics first).
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Acc<const D: usize> {
+    Float(ObsStats<D>),
+    Codes(CodeSums<D>),
+}
+
+impl<const D: usize> Acc<D> {
+    /// Add an f32 feature.
+    #[inline]
+    pub(super) fn add_f32(&mut self, y: &[f32; D], scale: f32) {
+        self.make_float(scale);
+        if let Self::Float(o) = self {
+            o.add_point(y);
+        }
+    }
+
+    /// Add int8 codes of scale `scale` (checked by the caller).
+    #[inline]
+    pub(super) fn add_codes(&mut self, codes: &[i8; D], scale: f32) {
+        match self {
+            Self::Codes(c) if !c.is_full() => c.add(codes),
+            Self::Float(o) if o.is_empty() => {
+                let mut c = CodeSums::EMPTY;
+                c.add(codes);
+                *self = Self::Codes(c);
+            }
+            _ => {
+                // f32 statistics (the voxel took an f32 feature first), or full sums (callers restart
+                // those first): continue in f32.
+                self.make_float(scale);
+                if let Self::Float(o) = self {
+                    o.add_point(&codes.map(|c| f32::from(c) * scale));
+                }
+            }
+        }
+    }
+
+    /// Turn integer sums into f32 statistics.
+    pub(super) fn make_float(&mut self, scale: f32) {
+        if let Self::Codes(c) = self {
+            *self = Self::Float(c.to_obs(scale));
+        }
+    }
+
+    /// Merge what it holds into `obs`.
+    #[inline]
+    pub(super) fn merge_into(&self, obs: &mut ObsStats<D>, scale: f32) {
+        match self {
+            Self::Float(o) => obs.merge(o),
+            Self::Codes(c) => obs.merge_codes(c, scale),
+        }
+    }
+
+    /// Whether it holds nothing.
+    fn is_empty(&self) -> bool {
+        match self {
+            Self::Float(o) => o.is_empty(),
+            Self::Codes(c) => c.count == 0,
+        }
+    }
+}
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
     /// Merge hot entry `h` into its slot's codes (one decode, one exact merge, one encode) and mark the slot
@@ -18,15 +81,34 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         };
         if slot.codes.count > 0.0 {
             slot.codes.decode_into(&mut self.scratch);
-            self.scratch.merge(&hot.obs);
-            slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
         } else {
-            slot.codes = QuantVoxel::encode(&hot.obs, &mut self.dither);
+            self.scratch = ObsStats::EMPTY;
+        }
+        if !hot.acc.is_empty() {
+            hot.acc.merge_into(&mut self.scratch, self.int8_scale);
+            slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
         }
         slot.hot = 0;
         slot.flags |= REFERENCED;
         self.counters.cooled = self.counters.cooled.saturating_add(1);
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+    }
+
+    /// Hot entry `h` holds as many int8 points as its sums can ([`crate::obs::CODE_SUMS_MAX_COUNT`]): merge
+    /// them into the slot's codes and start afresh, the voxel staying hot.
+    pub(super) fn restart_hot(&mut self, h: usize) {
+        self.cool(h);
+        let Some(e) = self.hot.get_mut(h) else { return };
+        e.acc = Acc::Float(ObsStats::EMPTY);
+        if let Some(slot) = self.slots.get_mut(usize::from(e.slot)) {
+            slot.hot = h as u8 + 1;
+        }
+    }
+
+    /// Whether hot entry `h` holds int8 sums that cannot take another point.
+    #[inline]
+    pub(super) fn hot_is_full(&self, h: usize) -> bool {
+        matches!(self.hot.get(h), Some(Hot { acc: Acc::Codes(c), .. }) if c.is_full())
     }
 
     /// Drop hot entry `h` (its slot is being freed): the last entry moves into its place.
@@ -75,7 +157,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         };
         if let Some(e) = self.hot.get_mut(h) {
             *e = Hot {
-                obs: ObsStats::EMPTY,
+                acc: Acc::Float(ObsStats::EMPTY),
                 key,
                 slot: s as u16,
                 referenced: true,

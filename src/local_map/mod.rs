@@ -27,11 +27,11 @@
 //! `hot` (the f32 tier and cooling), `window` (wrapped keys, moving the window); this file holds the
 //! layout, configuration, adding points and reading.
 
-use crate::batch::{locate, Rejection, RejectionCounts};
+use crate::batch::{locate, locate_key, Rejection, RejectionCounts};
 use crate::config::{ConfigError, MapConfig, Prior};
 use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
-use crate::obs::{gather, ObsLookup, ObsStats};
+use crate::obs::{code_in_range, gather, ObsLookup, ObsStats};
 use crate::quant::{Dither, QuantVoxel};
 use crate::sink::EvictionSink;
 use crate::stats::VoxelStats;
@@ -70,10 +70,10 @@ impl<const D: usize, const P: usize> Slot<D, P> {
     };
 }
 
-/// A voxel being observed now: its new points in f32.
+/// A voxel being observed now: its new points in f32, or as exact integer sums of int8 codes.
 #[derive(Clone, Copy, Debug)]
 struct Hot<const D: usize> {
-    obs: ObsStats<D>,
+    acc: hot::Acc<D>,
     key: VoxelKey,
     slot: u16,
     referenced: bool,
@@ -81,7 +81,7 @@ struct Hot<const D: usize> {
 
 impl<const D: usize> Hot<D> {
     const EMPTY: Self = Self {
-        obs: ObsStats::EMPTY,
+        acc: hot::Acc::Float(ObsStats::EMPTY),
         key: VoxelKey::new(0, 0, 0),
         slot: 0,
         referenced: false,
@@ -135,7 +135,11 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     /// Decoding scratch (a 516-byte temporary kept off the device stack).
     scratch: ObsStats<D>,
     centre: VoxelKey,
+    /// Whether the last window move left a voxel outside the window (its eviction was refused).
+    stranded: bool,
     radius: i32,
+    /// Scale of int8 features (y = scale · code); 0 = none set (int8 points are refused).
+    int8_scale: f32,
     dither: Dither,
     next_residency: u32,
     rejections: RejectionCounts,
@@ -173,7 +177,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         last_hot: 0,
         scratch: ObsStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
+        stranded: false,
         radius: 0,
+        int8_scale: 0.0,
         dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {
@@ -183,6 +189,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             no_room: 0,
             outside_window: 0,
             unpaired: 0,
+            code_out_of_range: 0,
+            feature_scale: 0,
         },
         counters: Counters {
             points: 0,
@@ -217,6 +225,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.hot_hand = 0;
         self.last_hot = 0;
         self.radius = radius as i32;
+        self.stranded = false;
+        self.int8_scale = 0.0;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
         Ok(())
@@ -325,33 +335,140 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         feature: &[f32; D],
         sink: &mut S,
     ) -> Result<(), Rejection> {
+        let (key, _) = locate(&self.lut, position, feature)?;
+        let h = self.hot_entry(key, sink)?;
+        let scale = self.int8_scale;
+        let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
+        e.acc.add_f32(feature, scale);
+        e.referenced = true;
+        Ok(())
+    }
+
+    /// The hot entry of `key`'s voxel: the previous point's, else the voxel's own, else a new one (a slot
+    /// allocated, evicting if the pool is full).
+    #[inline]
+    fn hot_entry<S: EvictionSink<D>>(
+        &mut self,
+        key: VoxelKey,
+        sink: &mut S,
+    ) -> Result<usize, Rejection> {
         if self.lut.offsets().is_empty() {
             // Not configured (`EMPTY`): no room for anything.
             return Err(Rejection::NoRoom);
         }
-        let (key, _) = locate(&self.lut, position, feature)?;
         if !self.in_window(key) {
             return Err(Rejection::OutsideWindow);
         }
-        let h = match self.hot.get(self.last_hot) {
-            Some(e) if self.last_hot < self.hot_len && e.key == key => self.last_hot,
-            _ => {
-                let h = match self.find(key) {
-                    Some((_, s)) => match self.slots.get(s).map_or(0, |slot| slot.hot) {
-                        0 => self.make_hot(s, key),
-                        h => usize::from(h - 1),
-                    },
-                    None => {
-                        let s = self.alloc(key, sink).ok_or(Rejection::NoRoom)?;
-                        self.make_hot(s, key)
-                    }
-                };
-                self.last_hot = h;
-                h
+        if let Some(e) = self.hot.get(self.last_hot) {
+            if self.last_hot < self.hot_len && e.key == key {
+                return Ok(self.last_hot);
+            }
+        }
+        let h = match self.find(key) {
+            Some((_, s)) => match self.slots.get(s).map_or(0, |slot| slot.hot) {
+                0 => self.make_hot(s, key),
+                h => usize::from(h - 1),
+            },
+            None => {
+                let s = self.alloc(key, sink).ok_or(Rejection::NoRoom)?;
+                self.make_hot(s, key)
             }
         };
+        self.last_hot = h;
+        Ok(h)
+    }
+
+    // ----- int8 features -----------------------------------------------------------------------------
+
+    /// Declare the scale of int8 features: a code c stands for the feature value y = `scale` · c. Points
+    /// with int8 features are refused (counted as [`Rejection::FeatureScale`]) until a valid scale is set,
+    /// and after an invalid one (NaN, infinite, ≤ 0, or so large that 127·√D·scale exceeds
+    /// [`crate::batch::FEATURE_LIMIT`]), which also returns an error. Voxels being observed keep what they
+    /// took with the previous scale. [`Self::configure`] clears it.
+    pub fn set_int8_scale(&mut self, scale: f32) -> Result<(), ConfigError> {
+        let scale_ok = scale > 0.0
+            && scale * f32::from(crate::obs::CODE_MAX) * libm::sqrtf(D as f32)
+                <= crate::batch::FEATURE_LIMIT;
+        // Sums taken with the previous scale become f32 statistics first.
+        let old = self.int8_scale;
+        for e in self.hot.iter_mut().take(self.hot_len) {
+            e.acc.make_float(old);
+        }
+        self.int8_scale = if scale_ok { scale } else { 0.0 };
+        if scale_ok {
+            Ok(())
+        } else {
+            Err(ConfigError::Int8Scale)
+        }
+    }
+
+    /// The int8 feature scale (0 when none is set).
+    pub fn int8_scale(&self) -> f32 {
+        self.int8_scale
+    }
+
+    /// Add one map-frame point with an int8 feature (y = [`Self::int8_scale`] · code): `Ok` means its voxel
+    /// took it. The voxel keeps exact integer sums of the codes while it is observed (two integer additions
+    /// and a multiply per dimension, no float); refusals are counted as for [`Self::add_point`], plus
+    /// [`Rejection::CodeOutOfRange`] (a code of −128) and [`Rejection::FeatureScale`] (no valid scale).
+    pub fn add_point_i8<S: EvictionSink<D>>(
+        &mut self,
+        position: [f32; 3],
+        codes: &[i8; D],
+        sink: &mut S,
+    ) -> Result<(), Rejection> {
+        match self.take_point_i8(position, codes, sink) {
+            Ok(()) => {
+                self.counters.points = self.counters.points.wrapping_add(1);
+                Ok(())
+            }
+            Err(r) => {
+                self.rejections.count(r);
+                Err(r)
+            }
+        }
+    }
+
+    /// [`Self::add_points`] for int8 features.
+    pub fn add_points_i8<S: EvictionSink<D>>(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        codes: &[[i8; D]],
+        sink: &mut S,
+    ) -> usize {
+        let mut taken = 0;
+        for (p, c) in points.iter().zip(codes) {
+            if self.add_point_i8(to_map_frame(pose, *p), c, sink).is_ok() {
+                taken += 1;
+            }
+        }
+        for _ in 0..points.len().abs_diff(codes.len()) {
+            self.rejections.count(Rejection::Unpaired);
+        }
+        taken
+    }
+
+    fn take_point_i8<S: EvictionSink<D>>(
+        &mut self,
+        position: [f32; 3],
+        codes: &[i8; D],
+        sink: &mut S,
+    ) -> Result<(), Rejection> {
+        let key = locate_key(&self.lut, position)?;
+        if !(self.int8_scale > 0.0) {
+            return Err(Rejection::FeatureScale);
+        }
+        if !code_in_range(codes) {
+            return Err(Rejection::CodeOutOfRange);
+        }
+        let h = self.hot_entry(key, sink)?;
+        if self.hot_is_full(h) {
+            self.restart_hot(h);
+        }
+        let scale = self.int8_scale;
         let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
-        e.obs.add_point(feature);
+        e.acc.add_codes(codes, scale);
         e.referenced = true;
         Ok(())
     }
@@ -373,7 +490,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             .checked_sub(1)
             .and_then(|h| self.hot.get(h))
         {
-            obs.merge(&hot.obs);
+            hot.acc.merge_into(&mut obs, self.int8_scale);
         }
         obs
     }
@@ -453,6 +570,17 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// Bytes one voxel costs: its slot plus its share of the index.
     pub const BYTES_PER_VOXEL: usize =
         core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
+
+    /// Bytes one entry of the full-precision (hot) tier costs.
+    pub const BYTES_PER_HOT_VOXEL: usize = core::mem::size_of::<Hot<D>>();
+
+    /// Bytes of everything else: the kernel table, the decoding scratch, hands and counters.
+    pub const FIXED_BYTES: usize = core::mem::size_of::<LocalMap<D, 0, P, 0>>();
+
+    /// The map's RAM: `CAP` × [`Self::BYTES_PER_VOXEL`] + `H` × [`Self::BYTES_PER_HOT_VOXEL`] +
+    /// [`Self::FIXED_BYTES`]; equals `size_of::<Self>()` (tested).
+    pub const RAM_BYTES: usize =
+        CAP * Self::BYTES_PER_VOXEL + H * Self::BYTES_PER_HOT_VOXEL + Self::FIXED_BYTES;
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize> ObsLookup<D>

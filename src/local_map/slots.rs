@@ -23,7 +23,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         slot.codes.decode_into(&mut self.scratch);
         if let Some(h) = usize::from(slot.hot).checked_sub(1) {
             if let Some(hot) = self.hot.get(h) {
-                self.scratch.merge(&hot.obs);
+                hot.acc.merge_into(&mut self.scratch, self.int8_scale);
             }
         }
     }

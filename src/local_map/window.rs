@@ -35,9 +35,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             return 0;
         };
         let old_centre = self.centre;
+        if new_centre == old_centre && !self.stranded {
+            // Every voxel was taken inside this same window and none was left outside by a refused
+            // eviction: nothing can be outside. (A 64-point ToF frame would otherwise read every key.)
+            return 0;
+        }
         let r = i64::from(self.radius);
         let mut evicted = 0;
         let mut keep_centre = false;
+        let mut stranded = false;
         for s in 0..CAP {
             if self.slots[s].flags & OCCUPIED == 0 {
                 continue;
@@ -46,8 +52,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             if key.distance_squared(new_centre) > r * r {
                 if self.evict_slot(s, sink) {
                     evicted += 1;
-                } else if !Self::wrap_safe(key, new_centre) {
-                    keep_centre = true;
+                } else {
+                    stranded = true;
+                    keep_centre |= !Self::wrap_safe(key, new_centre);
                 }
             }
         }
@@ -56,6 +63,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         if !keep_centre {
             self.centre = new_centre;
         }
+        self.stranded = stranded;
         evicted
     }
 }

@@ -35,6 +35,9 @@ pub struct SessionConfig {
     /// Id of the feature space (the PCA the features were compressed with): [`feature_space_id`];
     /// [`NO_FEATURE_SPACE`] = features are not PCA-compressed.
     pub feature_space: u32,
+    /// Scale of the robot's int8 features (a code c is the feature value `int8_scale` · c), so a receiver
+    /// knows the grid the statistics were computed on; 0 = f32 features. Finite and ≥ 0.
+    pub int8_scale: f32,
 }
 
 impl SessionConfig {
@@ -55,6 +58,16 @@ impl SessionConfig {
             prior_psi: p.psi,
             codec,
             feature_space,
+            int8_scale: 0.0,
+        }
+    }
+
+    /// The same configuration for a robot whose features are int8 codes of `scale`
+    /// ([`Self::int8_scale`]).
+    pub const fn with_int8_scale(self, scale: f32) -> Self {
+        Self {
+            int8_scale: scale,
+            ..self
         }
     }
 
@@ -82,6 +95,9 @@ impl SessionConfig {
         }
         self.codec.validate(dim)?;
         self.map_config().map_err(|_| WireError::BadConfig)?;
+        if !(self.int8_scale >= 0.0 && self.int8_scale.is_finite()) {
+            return Err(WireError::BadConfig);
+        }
         Ok(())
     }
 
@@ -90,7 +106,7 @@ impl SessionConfig {
         let mut buf = [0u8; 64];
         match postcard::to_slice(self, &mut buf) {
             Ok(bytes) => CRC32.checksum(bytes),
-            Err(_) => 0, // cannot happen: the encoding is at most 40 bytes
+            Err(_) => 0, // cannot happen: the encoding is at most 44 bytes
         }
     }
 }

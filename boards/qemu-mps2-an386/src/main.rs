@@ -132,8 +132,9 @@ fn run_scenario(
         r.link.frames_sent
     );
     report!(
-        "scenario s={} f={} frames={} points={} integrated={} peak_voxels={} capacity={} evicted={} refused={} flushed={} no_room={} outside_window={} frames_sent={} bytes_sent={} evicted_sent={} invalid={}",
+        "scenario s={} name={} f={} frames={} points={} integrated={} peak_voxels={} capacity={} evicted={} refused={} flushed={} no_room={} outside_window={} frames_sent={} bytes_sent={} evicted_sent={} invalid={}",
         s,
+        scenario.name,
         scenario.filter_size,
         scenario.frames,
         r.points,

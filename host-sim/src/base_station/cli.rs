@@ -93,7 +93,9 @@ impl ViewArgs {
 fn parse_rate(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(r) if r.is_finite() && r > 0.0 && r <= 1000.0 => Ok(r),
-        _ => Err(format!("`{s}`: give a number of updates per second in (0, 1000]")),
+        _ => Err(format!(
+            "`{s}`: give a number of updates per second in (0, 1000]"
+        )),
     }
 }
 

@@ -5,10 +5,10 @@
 //! core's math: [`ObsStats::merge_scaled`] and [`ObsStats::posterior`]). Voxels live in 8³ blocks found
 //! through one hash lookup; inside a block a voxel is an array index, so a gather's 27 neighbour lookups
 //! cost a few integer operations instead of 27 hash probes, and "every voxel in reach" is a bitmask per
-//! block. Results equal the literal paper update ([`crate::ReferenceMap`]) to f32 rounding (tests).
+//! block. Results equal the literal paper update (host-sim's `ReferenceMap`) to f32 rounding (tests).
 //!
 //! Only the voxel-offset kernel can be gathered from per-voxel statistics; a sub-voxel configuration is
-//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — [`crate::ReferenceMap`] keeps that mode.
+//! refused at construction ([`ObsMapError::SubVoxelKernel`]) — host-sim's `ReferenceMap` keeps that mode.
 
 use latentbki::batch::locate;
 use latentbki::nalgebra::Isometry3;
@@ -42,6 +42,24 @@ fn voxel_of(block: BlockKey, local: usize) -> VoxelKey {
         (block[1] << SHIFT) | ((l >> SHIFT) & MASK),
         (block[2] << SHIFT) | (l >> (2 * SHIFT)),
     )
+}
+
+/// The voxels a view's points fall in, with the number of points in each, sorted by key: what
+/// [`latentbki::view_score`] takes. Points without a key (non-finite, out of range) are left out.
+pub fn view_hits(points: &[[f32; 3]], inv_voxel_size: f32) -> Vec<(VoxelKey, f32)> {
+    let mut keys: Vec<VoxelKey> = points
+        .iter()
+        .filter_map(|p| VoxelKey::from_position(*p, inv_voxel_size).ok())
+        .collect();
+    keys.sort_unstable();
+    let mut hits: Vec<(VoxelKey, f32)> = Vec::new();
+    for k in keys {
+        match hits.last_mut() {
+            Some((last, n)) if *last == k => *n += 1.0,
+            _ => hits.push((k, 1.0)),
+        }
+    }
+    hits
 }
 
 /// Why an [`ObsMap`] cannot be built.
@@ -192,6 +210,21 @@ impl<const D: usize> ObsMap<D> {
     pub fn posterior_in_reach(&self, key: VoxelKey) -> Option<VoxelStats<D>> {
         let obs = latentbki::gather(&self.lut, self, key).ok()?;
         (!obs.is_empty()).then(|| obs.posterior(&self.prior))
+    }
+
+    /// The information-gain score of a candidate view whose points would fall at `points` (map frame):
+    /// [`latentbki::info_gain::view_score`] over the voxels they hit, each with its point count.
+    pub fn view_score(&self, points: &[[f32; 3]]) -> f32 {
+        let hits = view_hits(points, self.lut.inv_voxel_size());
+        // The table was checked to be voxel-offset at construction, and `view_hits` sorts.
+        latentbki::view_score(&self.lut, self, self.prior.lambda, &hits).unwrap_or(0.0)
+    }
+
+    /// The expected information gain of one voxel if it received kernel weight `w`
+    /// ([`latentbki::voxel_gain`] at its gathered λ).
+    pub fn voxel_gain(&self, key: VoxelKey, w: f32) -> f32 {
+        let k = latentbki::info_gain::gathered_count(&self.lut, self, key).unwrap_or(0.0);
+        latentbki::voxel_gain(self.prior.lambda + k, w)
     }
 
     /// Bitmask, per block, of every voxel within the kernel's reach of an observed voxel.

@@ -3,10 +3,12 @@
 use super::guard::{self, QueryParameter, Subscriptions, ViewRequests};
 use super::scene::{Layer, Scene};
 use super::{ViewError, ViewOptions, LEGEND_TOPIC, STATUS_TOPIC};
-use crate::base_station::export::label_colour;
-use crate::base_station::{BaseStation, GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
+use crate::export::label_colour;
+use crate::{BaseStation, GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
 use foxglove::messages::{SceneUpdate, Timestamp};
-use foxglove::{Context, Encode, McapWriterHandle, RawChannel, Schema, SinkId, WebSocketServerHandle};
+use foxglove::{
+    Context, Encode, McapWriterHandle, RawChannel, Schema, SinkId, WebSocketServerHandle,
+};
 use latentbki::wire::SessionConfig;
 use latentbki::{Codebook, VoxelKey};
 use std::collections::{BTreeMap, HashMap};
@@ -21,11 +23,14 @@ const MAX_ARRIVALS: usize = 4096;
 /// Latency samples kept at most.
 const MAX_SAMPLES: usize = 1 << 20;
 
+/// The link's counters as ingest last saw them.
+type LinkCounters = (ReceiveStats, BTreeMap<(u16, u32), SessionState>);
+
 /// What ingest hands the view thread.
 struct Inbox<const D: usize> {
     config: Option<SessionConfig>,
     voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
-    link: Option<(ReceiveStats, BTreeMap<(u16, u32), SessionState>)>,
+    link: Option<LinkCounters>,
     arrivals: Vec<Instant>,
     full: Vec<(SinkId, String)>,
     phrase: Option<String>,
@@ -110,7 +115,11 @@ struct Channels {
 fn json_channel(ctx: &Arc<Context>, topic: &str, name: &str) -> Arc<RawChannel> {
     ctx.channel_builder(topic)
         .message_encoding("json")
-        .schema(Schema::new(name, "jsonschema", br#"{"type":"object"}"#.as_slice()))
+        .schema(Schema::new(
+            name,
+            "jsonschema",
+            br#"{"type":"object"}"#.as_slice(),
+        ))
         .build_raw()
         .expect("a JSON channel with a schema is valid")
 }
@@ -151,17 +160,16 @@ impl<const D: usize> Viewer<D> {
             wake: Condvar::new(),
             phrase: Mutex::new(phrase),
         });
-        let mcap = match &options.record {
-            Some(p) => Some(
-                ctx.mcap_writer()
-                    .create_new_buffered_file(p)
-                    .map_err(|error| ViewError::Record {
+        let mcap =
+            match &options.record {
+                Some(p) => Some(ctx.mcap_writer().create_new_buffered_file(p).map_err(
+                    |error| ViewError::Record {
                         path: p.display().to_string(),
                         error,
-                    })?,
-            ),
-            None => None,
-        };
+                    },
+                )?),
+                None => None,
+            };
         let (server, port) = match options.listen {
             Some(addr) => {
                 guard::install_refusal_counter();
@@ -308,7 +316,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
                         .unwrap_or_else(PoisonError::into_inner);
                 }
                 let stop = inbox.stop;
-                let batch = std::mem::replace(
+                std::mem::replace(
                     &mut *inbox,
                     Inbox {
                         config: None,
@@ -319,8 +327,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
                         phrase: None,
                         stop,
                     },
-                );
-                batch
+                )
             };
             last = Instant::now();
             self.update(batch.config, batch.voxels, batch.phrase);
@@ -443,7 +450,12 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             }
             return;
         }
-        let Some(&(layer, _)) = self.channels.layers.iter().find(|(l, _)| l.topic() == topic) else {
+        let Some(&(layer, _)) = self
+            .channels
+            .layers
+            .iter()
+            .find(|(l, _)| l.topic() == topic)
+        else {
             return;
         };
         let time = Timestamp::now();

@@ -9,8 +9,8 @@
 //! entity's metadata (one comma-separated list per entity, in cube order), which Foxglove shows on
 //! selection and which the tests read back.
 
-use crate::base_station::export::{label_colour, ramp};
-use crate::base_station::global_map::{argmax, GlobalMap};
+use crate::export::{label_colour, ramp};
+use crate::global_map::{argmax, GlobalMap};
 use foxglove::messages::{
     scene_entity_deletion, Color, CubePrimitive, KeyValuePair, Pose, Quaternion, SceneEntity,
     SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
@@ -175,7 +175,10 @@ impl<const D: usize, const K: usize> Scene<D, K> {
 
     /// Observed voxels whose posterior a change of `changed` alters: each changed voxel and every
     /// observed voxel within the kernel's reach of it.
-    pub fn affected(map: &GlobalMap<D>, changed: impl IntoIterator<Item = VoxelKey>) -> Vec<VoxelKey> {
+    pub fn affected(
+        map: &GlobalMap<D>,
+        changed: impl IntoIterator<Item = VoxelKey>,
+    ) -> Vec<VoxelKey> {
         let r = map.map_config().reach();
         let mut out = BTreeSet::new();
         for k in changed {
@@ -266,9 +269,7 @@ impl<const D: usize, const K: usize> Scene<D, K> {
     fn colour(&self, layer: Layer, row: &VoxelRow<D>) -> [u8; 3] {
         match layer {
             Layer::Classes => row.class.map_or(UNDEFINED, |(c, _)| label_colour(c)),
-            Layer::Heat => row
-                .heat
-                .map_or(UNDEFINED, |s| ramp(self.heat_range.t(s))),
+            Layer::Heat => row.heat.map_or(UNDEFINED, |s| ramp(self.heat_range.t(s))),
             Layer::Uncertainty => match (row.e_opt.filter(|e| *e > 0.0), self.log_e_range) {
                 (Some(e), Some(r)) => ramp(r.t(e.ln())),
                 (Some(_), None) => ramp(0.5),

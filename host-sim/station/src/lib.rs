@@ -9,16 +9,24 @@
 //! that [`BaseStation::changes`] hands a [`store::MapStore`] exactly that, at frame boundaries only: a
 //! frame's summaries and the sequence state that marks it merged are always in the same change set.
 //! Storage, queries and exports live in the submodules.
+//!
+//! This crate is what a deployed base station builds: the core, SQLite and PNG, and none of the desktop
+//! twin's simulator, evaluation or command line (those stay in `host-sim`, which also holds the
+//! `base-station`, `map-info` and `map-query` commands built on this crate).
+#![forbid(unsafe_code)]
 
-pub mod cli;
 pub mod export;
 pub mod global_map;
+pub mod obs_map;
+pub mod png_io;
 pub mod store;
+#[cfg(feature = "view")]
 pub mod view;
 
 pub use global_map::{
     Applied, ContributionId, GlobalMap, GlobalVoxel, RecordError, Uncertainty, VOCAB_CAP,
 };
+pub use obs_map::ObsMap;
 
 use latentbki::frame::{DecoderStats, Feed, FrameDecoder, SeqTracker, SeqVerdict};
 use latentbki::wire::{parse_body, LinkStats, Message, SessionConfig, Summary, WireError};
