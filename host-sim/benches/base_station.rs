@@ -2,7 +2,9 @@
 //! map database with commits on (every 250 ms, the default), the whole path the CLI runs: a reader thread,
 //! frame checks, the exact merge, dirty-voxel tracking and the transactions. The stream: 6 robots, 60 scans
 //! each along a street (the streaming tests' scene), live updates and evictions, written to a file once.
-//! Run: `cargo bench -p host-sim --bench base_station`; the last line is the headline figure.
+//! Then the map's lookups on the merged result: one voxel's posterior (a 27-neighbour gather) for every
+//! voxel held, and every posterior in reach at once (what the exports and `map-info` take).
+//! Run: `cargo bench -p host-sim --bench base_station`; it prints one line per figure.
 
 #[path = "../tests/stream_common/mod.rs"]
 mod stream_common;
@@ -80,6 +82,9 @@ fn bench(c: &mut Criterion) {
     g.finish();
     let mut r = rates.lock().unwrap().clone();
     r.sort_by(f64::total_cmp);
+    if r.is_empty() {
+        return; // filtered out
+    }
     println!(
         "base station, file -> SQLite with commits every 250 ms: median {:.0} summaries/s (min {:.0}, max {:.0}; {summaries} summaries, {} runs)",
         r[r.len() / 2],
@@ -89,5 +94,52 @@ fn bench(c: &mut Criterion) {
     );
 }
 
-criterion_group!(benches, bench);
+/// Median of `f`'s time over `runs` runs.
+fn median_time(runs: usize, mut f: impl FnMut()) -> Duration {
+    let mut t: Vec<Duration> = (0..runs)
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed()
+        })
+        .collect();
+    t.sort();
+    t[runs / 2]
+}
+
+fn lookups(c: &mut Criterion) {
+    let mut base = BaseStation::<D>::adopting();
+    base.receive(&recorded());
+    let map = base
+        .into_map()
+        .expect("the stream carries a session header");
+    let keys = map.sorted_keys();
+    let mut g = c.benchmark_group("global_map");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(keys.len() as u64));
+    let gather_all = || {
+        keys.iter()
+            .filter_map(|k| map.posterior(k))
+            .map(|p| p.lambda)
+            .sum::<f32>()
+    };
+    g.bench_function("posterior_every_voxel", |b| b.iter(gather_all));
+    g.bench_function("posteriors", |b| b.iter(|| map.posteriors().len()));
+    g.finish();
+    let one = median_time(11, || {
+        std::hint::black_box(gather_all());
+    });
+    let all = median_time(11, || {
+        std::hint::black_box(map.posteriors());
+    });
+    println!(
+        "global map lookups: posterior(key) median {:.0} ns per voxel; posteriors() median {:.1} ms ({} voxels held, {} in reach)",
+        one.as_secs_f64() * 1e9 / keys.len() as f64,
+        all.as_secs_f64() * 1e3,
+        keys.len(),
+        map.posteriors().len()
+    );
+}
+
+criterion_group!(benches, bench, lookups);
 criterion_main!(benches);

@@ -1,6 +1,6 @@
 //! Option groups that several commands share (one definition each, flattened into the commands).
 
-use crate::sim::tile::LengthUnit;
+use crate::sim::tile::{LengthUnit, ReadOptions, DEFAULT_MAX_POINTS};
 use anyhow::Result;
 use clap::Args;
 use latentbki::{KernelMode, MapConfig, Prior};
@@ -9,12 +9,12 @@ use std::path::PathBuf;
 /// The map configuration, shared by every command that builds a map.
 #[derive(Args, Debug, Clone)]
 pub struct MapArgs {
-    /// Voxel edge length in metres.
-    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
-    pub voxel_size: f32,
-    /// Kernel length ℓ in metres.
-    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
-    pub kernel_length: f32,
+    /// Voxel edge length in metres [default: 0.1; with --las, from the file's point spacing].
+    #[arg(long, allow_negative_numbers = true)]
+    pub voxel_size: Option<f32>,
+    /// Kernel length ℓ in metres [default: 0.5; with --las, five voxels (the paper's ratio)].
+    #[arg(long, allow_negative_numbers = true)]
+    pub kernel_length: Option<f32>,
     /// Filter size f (odd, 1..=7): a point updates f³ voxels.
     #[arg(long, default_value_t = 3)]
     pub filter_size: u8,
@@ -32,23 +32,43 @@ pub struct MapArgs {
     pub subvoxel_cells: u8,
 }
 
+/// The paper's outdoor voxel size (metres), the default when no data decides it.
+pub const DEFAULT_VOXEL_SIZE: f32 = 0.1;
+
 impl MapArgs {
-    /// The validated configuration.
+    /// The validated configuration: the given voxel size and kernel length, by default the paper's
+    /// outdoor 0.1 m and 0.5 m.
     pub fn config(&self) -> Result<MapConfig> {
+        self.build(
+            self.voxel_size.unwrap_or(DEFAULT_VOXEL_SIZE),
+            self.kernel_length.unwrap_or(5.0 * DEFAULT_VOXEL_SIZE),
+        )
+    }
+
+    /// Whether the user gave the voxel size or the kernel length (else the data may choose them).
+    pub fn scale_given(&self) -> bool {
+        self.voxel_size.is_some() || self.kernel_length.is_some()
+    }
+
+    /// The validated configuration with the voxel size `voxel` unless one was given; the kernel length as
+    /// given, else five voxels.
+    pub fn config_with_voxel(&self, voxel: f32) -> Result<MapConfig> {
+        let voxel = self.voxel_size.unwrap_or(voxel);
+        let kernel = self
+            .kernel_length
+            .unwrap_or(crate::sim::scale::KERNEL_VOXELS * voxel);
+        self.build(voxel, kernel)
+    }
+
+    fn build(&self, voxel: f32, kernel: f32) -> Result<MapConfig> {
         let prior = Prior {
             lambda: self.prior_lambda,
             mean: self.prior_mean,
             psi: self.prior_psi,
         };
         let mode = KernelMode::from_subvoxel_cells(self.subvoxel_cells);
-        MapConfig::new(
-            self.voxel_size,
-            self.kernel_length,
-            self.filter_size,
-            prior,
-            mode,
-        )
-        .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
+        MapConfig::new(voxel, kernel, self.filter_size, prior, mode)
+            .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))
     }
 }
 
@@ -56,8 +76,8 @@ impl Default for MapArgs {
     /// The command-line defaults (the paper's outdoor configuration).
     fn default() -> Self {
         Self {
-            voxel_size: 0.1,
-            kernel_length: 0.5,
+            voxel_size: None,
+            kernel_length: None,
             filter_size: 3,
             prior_lambda: 0.0,
             prior_mean: 0.0,
@@ -83,11 +103,18 @@ pub struct TileArgs {
     /// Flying height above the ground in metres [default: a fifth of the range].
     #[arg(long, allow_negative_numbers = true)]
     pub altitude: Option<f32>,
+    /// Keep at most this many of the file's points (every k-th, in file order) [default: 2000000].
+    #[arg(long)]
+    pub max_points: Option<usize>,
 }
 
 impl TileArgs {
     /// Refuse ranges and heights that cannot fly.
     pub fn check(&self) -> Result<()> {
+        anyhow::ensure!(
+            self.max_points != Some(0),
+            "--max-points must be at least 1"
+        );
         for (name, v) in [("--range", self.range), ("--altitude", self.altitude)] {
             if let Some(v) = v {
                 anyhow::ensure!(
@@ -97,5 +124,15 @@ impl TileArgs {
             }
         }
         Ok(())
+    }
+}
+
+impl TileArgs {
+    /// How to read `--las`.
+    pub fn read_options(&self) -> ReadOptions {
+        ReadOptions {
+            units: self.units,
+            max_points: self.max_points.unwrap_or(DEFAULT_MAX_POINTS),
+        }
     }
 }

@@ -10,7 +10,6 @@ pub mod eval;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;
-pub mod order;
 pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]

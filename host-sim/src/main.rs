@@ -233,12 +233,39 @@ fn integrate<const D: usize>(
     Ok(())
 }
 
-fn main() -> Result<()> {
+/// A user's mistake — bad input, a file that cannot be used — is one line on stderr and exit status 1,
+/// with no backtrace even when `RUST_BACKTRACE=1` is set (returning the error from `main` would print
+/// anyhow's backtrace under it). Our own bugs panic, and the panic hook still prints their backtrace.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("Error: {}", one_line(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// The error and its causes on one line (`outer: inner`), any line breaks inside them folded.
+fn one_line(e: &anyhow::Error) -> String {
+    format!("{e:#}")
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn run() -> Result<()> {
     match Cli::parse().command {
         // The base station's simulated link plugs into the demo here (`Some(Box<dyn VoxelSink>)`).
         Command::Demo(args) => {
             // The robot's evictions cross a faulty serial link (byte error rate 1e-4) to a base station.
-            let link = host_sim::demo_link::DemoLink::new(&args.map.config()?, 1e-4, 7)?;
+            let link = host_sim::demo_link::DemoLink::new(
+                &host_sim::eval::cli::demo_config(&args)?,
+                1e-4,
+                7,
+            )?;
             let sink = host_sim::demo_link::DemoLinkSink(link.clone());
             host_sim::eval::cli::demo(&args, Some(Box::new(sink)))?;
             let mut link = link

@@ -134,7 +134,7 @@ fn host_sim(args: &[&str], out: &Path) -> (bool, String, String) {
         .args(args)
         .arg("--out")
         .arg(out)
-        .env("RUST_BACKTRACE", "0")
+        .env("RUST_BACKTRACE", "1")
         .output()
         .unwrap();
     (
@@ -174,7 +174,7 @@ fn their_laz_in_metres_loads_with_every_class_and_the_robot_follows_its_relief()
 
     // Terrain following: every pose is between half and one and a half times the altitude above the
     // ground beneath it, although the ground rises 9 m across the tile.
-    let (range, altitude) = tile::scaled_sensor(&t, 3000);
+    let (range, altitude) = host_sim::sim::scale::scaled_sensor(&t, 3000);
     assert_eq!((range, altitude), (10.0, 2.0));
     let run = TileRun {
         frames: 24,
@@ -336,8 +336,8 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
         lines[0].contains("too sparse") && lines[0].contains("raise --range"),
         "{stderr}"
     );
-    // Enough points to run, but 0.59 m apart for 0.1 m voxels: the table, then one line saying what to
-    // change.
+    // Enough points to run, but 0.59 m apart for the 0.1 m voxels the user asked for: the table, then one
+    // line saying what to change.
     let (ok, stdout, stderr) = host_sim(
         &[
             "eval",
@@ -348,6 +348,10 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
             "--points",
             "500",
             "--no-sweep",
+            "--voxel-size",
+            "0.1",
+            "--kernel-length",
+            "0.5",
         ],
         &out,
     );
@@ -415,7 +419,7 @@ const NEBRASKA_FTUS: &str = r#"PROJCS["NAD83(2011) / Nebraska (ftUS)",GEOGCS["NA
 fn run(args: &[&std::ffi::OsStr]) -> (bool, String, String) {
     let o = Command::new(env!("CARGO_BIN_EXE_host-sim"))
         .args(args)
-        .env("RUST_BACKTRACE", "0")
+        .env("RUST_BACKTRACE", "1")
         .output()
         .unwrap();
     (

@@ -143,6 +143,21 @@ fn print_report(r: &Report) {
     }
 }
 
+/// The map configuration `demo` will run with: the given one, or with `--las` the one chosen from the
+/// file's point spacing (the base station's link must be set up with the robot's configuration).
+pub fn demo_config(args: &DemoArgs) -> Result<latentbki::MapConfig> {
+    if args.tile.las.is_none() {
+        return args.map.config();
+    }
+    let options = SceneOptions {
+        tile: args.tile.clone(),
+        tile_config: args.map.config()?,
+        tile_map: Some(args.map.clone()),
+        ..SceneOptions::default()
+    };
+    Ok(SceneSource::new(Scene::Tile, &options, args.seed)?.config())
+}
+
 /// `demo`: the real tile, default configuration, the on-device map, the table and the pictures.
 ///
 /// `link` receives every voxel the device map evicts: the base station's simulated link plugs in here.
@@ -155,6 +170,7 @@ pub fn demo(args: &DemoArgs, link: Option<Box<dyn VoxelSink>>) -> Result<()> {
     let options = SceneOptions {
         tile: args.tile.clone(),
         tile_config: args.map.config()?,
+        tile_map: args.tile.las.as_ref().map(|_| args.map.clone()),
         ..SceneOptions::default()
     };
     match &args.tile.las {
@@ -228,6 +244,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         queries: args.queries.clone(),
         tile: args.tile.clone(),
         tile_config,
+        tile_map: args.tile.las.as_ref().map(|_| args.map.clone()),
         ..SceneOptions::default()
     };
     let scenes = match scene {
@@ -267,7 +284,7 @@ pub fn query(args: &QueryArgs) -> Result<()> {
         #[cfg(not(feature = "encoder"))]
         Err(e) => {
             return Err(anyhow::anyhow!(
-                "{e}\n(build with `--features encoder` to query any text)"
+                "{e} (build with `--features encoder` to query any text)"
             ))
         }
     };
@@ -282,11 +299,17 @@ pub fn query(args: &QueryArgs) -> Result<()> {
     let options = SceneOptions {
         tile: args.tile.clone(),
         tile_config: args.map.config()?,
+        tile_map: args.tile.las.as_ref().map(|_| args.map.clone()),
         ..SceneOptions::default()
     };
     let source = SceneSource::new(scene, &options, args.seed)?;
     if let (Some(t), Some(_)) = (source.tile(), &args.tile.las) {
-        println!("{}: {}", source.title(), t.summary());
+        println!(
+            "{}: {}; map scale: {}",
+            source.title(),
+            t.summary(),
+            source.scale_note()
+        );
     }
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);

@@ -173,6 +173,9 @@ pub enum Method {
     LatentBki(u8),
     /// LatentBKI on the quantized device map with filter size f.
     OnDevice(u8),
+    /// The same, fed int8 features: the PCA features quantized with one global scale (an accelerator's
+    /// output), set from the first frame.
+    OnDeviceInt8(u8),
 }
 
 impl Method {
@@ -185,11 +188,15 @@ impl Method {
             Self::ConvBki(f) => format!("ConvBKI-style categorical (f = {f})"),
             Self::LatentBki(f) => format!("LatentBKI f32 (f = {f})"),
             Self::OnDevice(f) => format!("LatentBKI on-device, quantized (f = {f})"),
+            Self::OnDeviceInt8(f) => format!("LatentBKI on-device, int8 features (f = {f})"),
         }
     }
     /// Whether the method quantifies uncertainty.
     pub fn has_uncertainty(&self) -> bool {
-        matches!(self, Self::LatentBki(_) | Self::OnDevice(_))
+        matches!(
+            self,
+            Self::LatentBki(_) | Self::OnDevice(_) | Self::OnDeviceInt8(_)
+        )
     }
     /// The comparison of the paper's tables, plus the device map.
     pub fn all() -> Vec<Method> {
@@ -205,6 +212,7 @@ impl Method {
             Self::LatentBki(1),
             Self::LatentBki(f),
             Self::OnDevice(f),
+            Self::OnDeviceInt8(f),
         ];
         methods.dedup(); // f = 1
         methods
@@ -260,6 +268,11 @@ fn build(
         Method::OnDevice(f) => {
             Box::new(OnDevice::new(with_filter(config, f)?, setup.device_window, link).map_err(e)?)
         }
+        Method::OnDeviceInt8(f) => Box::new(
+            OnDevice::new(with_filter(config, f)?, setup.device_window, None)
+                .map_err(e)?
+                .with_int8_features(),
+        ),
     })
 }
 
@@ -436,7 +449,7 @@ fn parallel<J: Sync, R: Send>(
 /// also quantizes and streams its evictions (about four times the f32 map's time).
 fn weight(m: &Method) -> u64 {
     match m {
-        Method::OnDevice(f) => 4 * (10 + u64::from(*f).pow(3)),
+        Method::OnDevice(f) | Method::OnDeviceInt8(f) => 4 * (10 + u64::from(*f).pow(3)),
         Method::LatentBki(f) => 10 + u64::from(*f).pow(3),
         Method::ConvBki(f) => 5 + u64::from(*f).pow(3),
         _ => 1,

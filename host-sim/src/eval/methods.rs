@@ -273,7 +273,13 @@ pub struct OnDevice {
     /// Evicted voxels merged per key (what the base station's global map holds).
     evicted: HashMap<VoxelKey, ObsStats<D>>,
     link: Option<Box<dyn VoxelSink>>,
+    /// int8 features: `Some(0.0)` until the first frame sets the scale, then `Some(scale)`.
+    int8_scale: Option<f32>,
 }
+
+/// Headroom of the int8 scale over the first frame's largest |feature component| (later frames may reach
+/// further; beyond ±127 codes clamp).
+const INT8_HEADROOM: f32 = 1.25;
 
 impl OnDevice {
     /// A device map with a window of `window_radius` metres around the robot; `link` also receives every
@@ -289,7 +295,16 @@ impl OnDevice {
             map,
             evicted: HashMap::new(),
             link,
+            int8_scale: None,
         })
+    }
+
+    /// Feed the map int8 features: each frame's features quantized with one global scale (round to
+    /// nearest, clamp to ±127), the scale set from the first frame's largest |component| with 25 %
+    /// headroom — what a firmware does with an accelerator whose output scale was calibrated once.
+    pub fn with_int8_features(mut self) -> Self {
+        self.int8_scale = Some(0.0);
+        self
     }
 
     /// The device map.
@@ -363,8 +378,35 @@ impl Mapper for OnDevice {
             evicted: &mut self.evicted,
             link: &mut self.link,
         };
+        let Some(mut scale) = self.int8_scale else {
+            self.map
+                .integrate(&frame.pose, &frame.points, &frame.features, &mut sink);
+            return;
+        };
+        if scale <= 0.0 {
+            let max = frame
+                .features
+                .iter()
+                .flatten()
+                .fold(0.0f32, |m, v| m.max(v.abs()));
+            if max <= 0.0 || max.is_nan() {
+                return; // nothing to calibrate on (an empty frame): wait for one with features
+            }
+            scale = max * INT8_HEADROOM / 127.0;
+            self.int8_scale = Some(scale);
+            self.map
+                .set_int8_scale(scale)
+                .expect("a finite positive scale of bounded features");
+        }
+        let codes: Vec<[i8; D]> = frame
+            .features
+            .iter()
+            .map(|y| y.map(|v| (v / scale).round().clamp(-127.0, 127.0) as i8))
+            .collect();
+        let t = frame.pose.translation.vector;
+        self.map.move_window([t.x, t.y, t.z], &mut sink);
         self.map
-            .integrate(&frame.pose, &frame.points, &frame.features, &mut sink);
+            .add_points_i8(&frame.pose, &frame.points, &codes, &mut sink);
     }
     fn predict(&self, decoder: &Decoder, p: [f32; 3], _own: &Feature) -> Option<usize> {
         decode(decoder, &self.posterior(p)?.mean)

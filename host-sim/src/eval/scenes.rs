@@ -12,10 +12,11 @@ use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
 use super::figures::{self, TopDown};
 use super::methods::{Decoder, VoxelSink};
 use super::sparsification::{self, Sparsification};
-use crate::cli_args::TileArgs;
+use crate::cli_args::{MapArgs, TileArgs};
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
+use crate::sim::scale;
 use crate::sim::sensor::{DepthCamera, MultizoneTof, RangeLidar};
-use crate::sim::tile::{self, Tile, TileRun};
+use crate::sim::tile::{self, significant, Tile, TileRun};
 use crate::sim::vocab::Vocabulary;
 use crate::sim::{mix_all, Sequence};
 use anyhow::{bail, Context, Result};
@@ -82,6 +83,9 @@ pub struct SceneOptions {
     pub tile: TileArgs,
     /// The tile scene's map configuration (default: the paper's outdoor one).
     pub tile_config: MapConfig,
+    /// With `Some`, the tile's map configuration is taken from these options, the voxel size and kernel
+    /// length that are not given chosen from the tile's point spacing ([`scale`]); `tile_config` is unused.
+    pub tile_map: Option<MapArgs>,
 }
 
 impl Default for SceneOptions {
@@ -98,6 +102,7 @@ impl Default for SceneOptions {
             queries: Vec::new(),
             tile: TileArgs::default(),
             tile_config: MapConfig::default(),
+            tile_map: None,
         }
     }
 }
@@ -108,6 +113,10 @@ pub struct SceneSource {
     tile: Option<Tile>,
     /// The LiDAR's range and flying height over the tile, metres.
     tile_flight: (f32, f32),
+    /// The tile scene's map configuration.
+    tile_config: MapConfig,
+    /// The scale used and where it came from, one phrase (the tile scene).
+    scale_note: String,
     houses: Option<(IndoorScene, IndoorScene)>,
     options: SceneOptions,
     seed: u64,
@@ -123,7 +132,7 @@ impl SceneSource {
                 let tile = match &t.las {
                     None => Tile::builtin_in(t.units).context("loading the built-in LAS tile")?,
                     // One line: the option, the file and what is wrong with it.
-                    Some(path) => Tile::from_path(path, t.units)
+                    Some(path) => Tile::read(path, &t.read_options())
                         .map_err(|e| anyhow::anyhow!("--las {}: {e}", path.display()))?,
                 };
                 (Some(tile), None)
@@ -136,22 +145,99 @@ impl SceneSource {
                 )),
             ),
         };
-        let tile_flight = match &tile {
-            Some(t) => {
-                let (range, _) = tile::scaled_sensor(t, options.tile_points);
-                let range = options.tile.range.unwrap_or(range);
-                (range, options.tile.altitude.unwrap_or(range / 5.0))
-            }
-            None => (0.0, 0.0),
+        let (tile_flight, tile_config, scale_note) = match &tile {
+            Some(t) => Self::tile_scale(t, options)?,
+            None => ((0.0, 0.0), options.tile_config, String::new()),
         };
         Ok(Self {
             scene,
             tile,
             tile_flight,
+            tile_config,
+            scale_note,
             houses,
             options: options.clone(),
             seed,
         })
+    }
+
+    /// The tile's map configuration, sensor range and flying height, and one phrase saying where they came
+    /// from: given (the options, or the paper's defaults for the built-in tile) or measured from the tile.
+    fn tile_scale(t: &Tile, options: &SceneOptions) -> Result<((f32, f32), MapConfig, String)> {
+        let (range, _) = tile::scaled_sensor(t, options.tile_points);
+        let flight_given = options.tile.range.is_some();
+        let range = options.tile.range.unwrap_or(range);
+        let altitude = options.tile.altitude.unwrap_or(range / 5.0);
+        let (config, map_note) = match &options.tile_map {
+            Some(map) => {
+                let voxel = scale::voxel_for_spacing(t.spacing);
+                let config = map.config_with_voxel(voxel)?;
+                let note = match (map.voxel_size.is_some(), map.kernel_length.is_some()) {
+                    (false, false) => format!(
+                        "from the points' spacing ≈ {} m: voxel ≈ spacing, ℓ = {} voxels",
+                        significant(t.spacing),
+                        scale::KERNEL_VOXELS
+                    ),
+                    (true, true) => "given".to_string(),
+                    (true, false) => format!("voxel given, ℓ = {} voxels", scale::KERNEL_VOXELS),
+                    (false, true) => format!(
+                        "ℓ given, voxel from the points' spacing ≈ {} m",
+                        significant(t.spacing)
+                    ),
+                };
+                (config, note)
+            }
+            None if options.tile == TileArgs::default()
+                && options.tile_config == MapConfig::default() =>
+            {
+                (
+                    options.tile_config,
+                    "given: the paper's outdoor configuration".to_string(),
+                )
+            }
+            None => (options.tile_config, "given".to_string()),
+        };
+        let flight_note = if flight_given {
+            "given".to_string()
+        } else {
+            format!(
+                "from the density: 4 frames of {} points in range, at least {} m",
+                options.tile_points,
+                significant(scale::scaled_sensor_floor(t.spacing))
+            )
+        };
+        let voxel = config.voxel_size();
+        let window = scale::window_voxels(range, voxel, config.filter_size());
+        if !scale::window_fits(window) {
+            let max = latentbki::local_map::MAX_WINDOW_VOXELS as f32;
+            bail!(
+                "the LiDAR's range ({} m) spans {window:.0} voxels of {voxel} m, and the device map's window holds at most {max:.0}: give --voxel-size {} or more, or a --range below {} m",
+                significant(range),
+                significant(scale::preferred_at_least((range + 1.0) / (0.9 * max))),
+                significant(0.9 * max * voxel),
+            );
+        }
+        let note = format!(
+            "voxel {} m, ℓ = {} m ({map_note}); LiDAR range {} m, flying {} m above the ground ({flight_note})",
+            significant(voxel),
+            significant(config.kernel_length()),
+            significant(range),
+            significant(altitude),
+        );
+        Ok(((range, altitude), config, note))
+    }
+
+    /// The scale the tile scene uses and where it came from (empty indoors).
+    pub fn scale_note(&self) -> &str {
+        &self.scale_note
+    }
+
+    /// The map configuration of this scene's runs.
+    pub fn config(&self) -> MapConfig {
+        match self.scene {
+            Scene::Tile => self.tile_config,
+            Scene::Indoor => MapConfig::default(),
+        }
     }
 
     /// The scene's sequence with `budget` points (tile) or pixels (camera) per frame.
@@ -173,7 +259,7 @@ impl SceneSource {
                     altitude: self.tile_flight.1,
                     seed,
                     phase: if train { 0.5 } else { 0.0 },
-                    config: self.options.tile_config,
+                    config: self.tile_config,
                 };
                 tile::sequence(self.tile.as_ref().expect("tile loaded"), &run)
             }
@@ -276,7 +362,7 @@ impl SceneSource {
             return None;
         }
         let spacing = (t.area() as f64 / t.points.len().max(1) as f64).sqrt();
-        let voxel = self.options.tile_config.voxel_size();
+        let voxel = self.tile_config.voxel_size();
         let advice = if spacing > 1.5 * f64::from(voxel) {
             let v = (spacing * 20.0).round() / 20.0;
             format!(
@@ -331,7 +417,12 @@ pub fn run(
     let vocab = Vocabulary::builtin();
     let source = SceneSource::new(scene, options, setup.seed)?;
     if let (Some(t), Some(_)) = (source.tile(), &options.tile.las) {
-        println!("{}: {}", source.title(), t.summary());
+        println!(
+            "{}: {}; map scale: {}",
+            source.title(),
+            t.summary(),
+            source.scale_note()
+        );
     }
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
@@ -437,14 +528,21 @@ pub fn run(
     let held: usize = frames.iter().map(|f| f.held_points.len()).sum();
     let integrated: usize = frames.iter().map(|f| f.points.len()).sum();
     let notes = format!(
-        "{} frames, {:.0} points per frame ({} integrated, {} held out); PCA 384 → 64 fitted on another sequence keeps {:.1} % of the variance; voxel {} m, ℓ = {} m. Unknown = held-out points whose voxel the map had not observed (counted wrong).",
+        "{} frames, {:.0} points per frame ({} integrated, {} held out); PCA 384 → 64 fitted on another sequence keeps {:.1} % of the variance; {}. Unknown = held-out points whose voxel the map had not observed (counted wrong).",
         frames.len(),
         test.points() as f64 / test.frames.len().max(1) as f64,
         integrated,
         held,
         100.0 * dec.explained_variance,
-        test.config.voxel_size(),
-        test.config.kernel_length(),
+        if source.scale_note().is_empty() {
+            format!(
+                "voxel {} m, ℓ = {} m",
+                test.config.voxel_size(),
+                test.config.kernel_length()
+            )
+        } else {
+            format!("map scale: {}", source.scale_note())
+        },
     );
     let mut md = experiment::table(&format!("Scene: {}", source.title()), &results, &notes);
     if let Some(r) = results.iter().find(|r| r.method == Method::LatentBki(f)) {

@@ -6,13 +6,18 @@
 //! pose and the labelled points it saw (in the map frame). The [`encoder`] turns labels into features the
 //! way a segmentation network would, errors included; [`pca`] compresses them to the map's 64 dimensions.
 
+pub mod asprs;
 pub mod encoder;
+pub mod flight;
 pub mod indoor;
 pub mod pca;
+pub mod scale;
 pub mod sensor;
 pub mod tile;
 pub mod trajectory;
+pub mod units;
 pub mod vocab;
+pub mod wkt;
 
 use latentbki::nalgebra::Isometry3;
 use latentbki::MapConfig;

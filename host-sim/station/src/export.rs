@@ -6,7 +6,7 @@
 //! one vertex per voxel at its centre, coloured by label, with the label, score, λ and D-optimality as
 //! extra properties for any point-cloud viewer.
 
-use super::global_map::{argmax, GlobalMap};
+use super::global_map::GlobalMap;
 pub use crate::png_io::RgbImage;
 use latentbki::{Codebook, VoxelKey, VoxelStats};
 use std::collections::HashMap;
@@ -192,7 +192,7 @@ pub fn label_image<const D: usize, const K: usize>(
     let cols = columns(map);
     paint(&cols, scale, |column| {
         let (_, top) = column.last()?;
-        argmax(vocab, &top.mean).map(|(l, _)| label_colour(l))
+        vocab.argmax(&top.mean).map(|(l, _)| label_colour(l))
     })
 }
 
@@ -310,7 +310,9 @@ pub fn write_ply<const D: usize, const K: usize>(
     .map_err(io)?;
     for (k, p) in &posteriors {
         let c = k.centroid(voxel);
-        let (label, score) = argmax(vocab, &p.mean).map_or((-1, 0.0), |(l, s)| (l as i64, s));
+        let (label, score) = vocab
+            .argmax(&p.mean)
+            .map_or((-1, 0.0), |(l, s)| (l as i64, s));
         let rgb = if label >= 0 {
             label_colour(label as usize)
         } else {

@@ -8,12 +8,14 @@
 //! repeated or late copy is ignored instead of merged again. Settled contributions are folded into one
 //! set of statistics per voxel; only live ones are kept apart until they close.
 //!
-//! Posteriors are gathered through the kernel when asked ([`latentbki::obs`]): for one voxel by the core's
-//! `gather`, for every voxel in reach through the host's [`ObsMap`].
+//! Posteriors are gathered through the kernel when asked ([`latentbki::obs`]). The map keeps each voxel's
+//! merged statistics in an [`ObsMap`] too, updated with every summary applied, so a lookup neither merges
+//! nor allocates: one voxel's posterior is the core's `gather` over the block map's array-indexed
+//! neighbours, and every posterior in reach is one pass over it.
 
 use crate::ObsMap;
 use latentbki::wire::{SessionConfig, Summary};
-use latentbki::{Codebook, KernelLut, MapConfig, ObsLookup, ObsStats, Prior, VoxelKey, VoxelStats};
+use latentbki::{Codebook, MapConfig, ObsLookup, ObsStats, Prior, VoxelKey, VoxelStats};
 use std::collections::HashMap;
 
 /// Largest vocabulary the base station decodes against.
@@ -48,7 +50,8 @@ pub struct GlobalVoxel<const D: usize> {
     pub settled: ObsStats<D>,
     /// Ids of the closed contributions (their copies are ignored).
     pub closed: Vec<ContributionId>,
-    /// Open contributions, newest copy of each.
+    /// Open contributions, newest copy of each, sorted by id (the order they are merged in, so the merged
+    /// statistics do not depend on the order frames arrived in).
     pub live: Vec<LiveContribution<D>>,
 }
 
@@ -84,7 +87,8 @@ const ID_LEN: usize = 10;
 
 impl<const D: usize> GlobalVoxel<D> {
     /// The voxel as an opaque, versioned byte record (the unit the map's storage keeps per key): every f32
-    /// bit-exact and every list in memory order, so [`GlobalVoxel::from_record`] gives back an equal voxel.
+    /// bit-exact and every list in memory order, so [`GlobalVoxel::from_record`] gives back an equal voxel
+    /// (records whose live list is out of order, as older builds wrote them, are read back sorted by id).
     ///
     /// Layout (little-endian): version u8; settled n, m (D), S (D) as f32; closed count u32, then
     /// (robot u16, session u32, residency u32) each; live count u32, then (id, seq u32, n, m, S) each.
@@ -143,6 +147,7 @@ impl<const D: usize> GlobalVoxel<D> {
             if !r.0.is_empty() {
                 return None;
             }
+            live.sort_by_key(|c: &LiveContribution<D>| c.id);
             let finite = settled.is_valid() && live.iter().all(|c| c.obs.is_valid());
             Some(if finite {
                 Ok(GlobalVoxel {
@@ -155,6 +160,15 @@ impl<const D: usize> GlobalVoxel<D> {
             })
         };
         parse(&mut r).unwrap_or(Err(malformed))
+    }
+
+    /// What was observed in the voxel: settled ⊕ every live contribution, in id order.
+    pub fn merged(&self) -> ObsStats<D> {
+        let mut p = self.settled;
+        for c in &self.live {
+            p.merge(&c.obs);
+        }
+        p
     }
 }
 
@@ -237,13 +251,14 @@ pub struct Uncertainty {
 pub struct GlobalMap<const D: usize> {
     config: SessionConfig,
     map_config: MapConfig,
-    lut: KernelLut,
     voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
+    /// Every voxel's [`GlobalVoxel::merged`], kept in step with `voxels`: what lookups gather from.
+    merged: ObsMap<D>,
 }
 
 impl<const D: usize> PartialEq for GlobalMap<D> {
     fn eq(&self, other: &Self) -> bool {
-        // The kernel table follows from the configuration.
+        // The kernel table and the merged statistics follow from the configuration and the voxels.
         self.config == other.config && self.voxels == other.voxels
     }
 }
@@ -261,16 +276,13 @@ impl<const D: usize> GlobalMap<D> {
         let map_config = config
             .map_config()
             .map_err(|_| latentbki::wire::WireError::BadConfig)?;
-        let lut = KernelLut::new(&map_config).map_err(|_| latentbki::wire::WireError::BadConfig)?;
-        if !lut.is_voxel_offset() {
-            // Per-voxel statistics cannot express the sub-voxel kernel.
-            return Err(latentbki::wire::WireError::BadConfig);
-        }
+        // Refuses a sub-voxel kernel: per-voxel statistics cannot express it.
+        let merged = ObsMap::new(map_config).map_err(|_| latentbki::wire::WireError::BadConfig)?;
         Ok(Self {
             config,
             map_config,
-            lut,
             voxels: HashMap::new(),
+            merged,
         })
     }
 
@@ -310,12 +322,23 @@ impl<const D: usize> GlobalMap<D> {
     }
 
     /// Insert a voxel as stored (for loading a saved map).
-    pub fn insert_raw(&mut self, key: VoxelKey, voxel: GlobalVoxel<D>) {
+    pub fn insert_raw(&mut self, key: VoxelKey, mut voxel: GlobalVoxel<D>) {
+        voxel.live.sort_by_key(|c| c.id);
+        self.merged.set_observations(key, &voxel.merged());
         self.voxels.insert(key, voxel);
     }
 
     /// Apply one decoded summary from `(robot, session)`'s frame `seq`.
     pub fn apply(&mut self, robot: u16, session: u32, seq: u32, s: &Summary<D>) -> Applied {
+        let applied = self.apply_to_voxel(robot, session, seq, s);
+        if matches!(applied, Applied::Merged | Applied::Updated) {
+            let merged = self.voxels[&s.key].merged();
+            self.merged.set_observations(s.key, &merged);
+        }
+        applied
+    }
+
+    fn apply_to_voxel(&mut self, robot: u16, session: u32, seq: u32, s: &Summary<D>) -> Applied {
         let id = ContributionId {
             robot,
             session,
@@ -333,18 +356,18 @@ impl<const D: usize> GlobalMap<D> {
                 Applied::Stale
             };
         }
-        let at = v.live.iter().position(|c| c.id == id);
+        let at = v.live.binary_search_by_key(&id, |c| c.id);
         if s.is_final {
-            if let Some(i) = at {
-                v.live.swap_remove(i);
+            if let Ok(i) = at {
+                v.live.remove(i);
             }
             v.settled.merge(&s.obs);
             v.closed.push(id);
             return Applied::Merged;
         }
         match at {
-            Some(i) if !newer(seq, v.live[i].seq) => Applied::Stale,
-            Some(i) => {
+            Ok(i) if !newer(seq, v.live[i].seq) => Applied::Stale,
+            Ok(i) => {
                 v.live[i] = LiveContribution {
                     id,
                     seq,
@@ -352,12 +375,15 @@ impl<const D: usize> GlobalMap<D> {
                 };
                 Applied::Updated
             }
-            None => {
-                v.live.push(LiveContribution {
-                    id,
-                    seq,
-                    obs: s.obs,
-                });
+            Err(i) => {
+                v.live.insert(
+                    i,
+                    LiveContribution {
+                        id,
+                        seq,
+                        obs: s.obs,
+                    },
+                );
                 Applied::Updated
             }
         }
@@ -365,46 +391,30 @@ impl<const D: usize> GlobalMap<D> {
 
     /// What was observed in a voxel: settled ⊕ every live contribution.
     pub fn observations(&self, key: &VoxelKey) -> Option<ObsStats<D>> {
-        self.voxels.get(key).map(Self::merged)
+        self.voxels.get(key).map(GlobalVoxel::merged)
     }
 
-    fn merged(v: &GlobalVoxel<D>) -> ObsStats<D> {
-        let mut p = v.settled;
-        let mut live: Vec<_> = v.live.iter().collect();
-        live.sort_by_key(|c| c.id); // order-independent result
-        for c in live {
-            p.merge(&c.obs);
-        }
-        p
-    }
-
-    /// The posterior of any voxel, gathered through the kernel from the observed voxels in reach (the
-    /// prior if none); `None` if nothing is in reach.
+    /// The posterior of any voxel, gathered through the kernel from the observed voxels in reach;
+    /// `None` if nothing is in reach.
     pub fn posterior(&self, key: &VoxelKey) -> Option<VoxelStats<D>> {
-        // The table is voxel-offset (checked in `new`).
-        let obs = latentbki::gather(&self.lut, self, *key).ok()?;
-        (!obs.is_empty()).then(|| obs.posterior(&self.prior()))
+        self.merged.posterior_in_reach(*key)
     }
 
     /// The merged observations in the host's block map, which gathers every posterior in one pass.
-    pub fn observation_map(&self) -> ObsMap<D> {
-        let mut map = ObsMap::new(self.map_config).expect("validated in GlobalMap::new");
-        for (k, v) in &self.voxels {
-            map.merge_observations(*k, &Self::merged(v));
-        }
-        map
+    pub fn observation_map(&self) -> &ObsMap<D> {
+        &self.merged
     }
 
     /// Every voxel within the kernel's reach of an observation, with its posterior, sorted by key.
     pub fn posteriors(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
-        self.observation_map().posteriors_sorted()
+        self.merged.posteriors_sorted()
     }
 
     /// Σ n over voxels: the points the map holds (conserved by merging).
     pub fn observed_points(&self) -> f64 {
-        self.voxels
-            .values()
-            .map(|v| f64::from(Self::merged(v).count))
+        self.merged
+            .observed_voxels()
+            .map(|(_, s)| f64::from(s.count))
             .sum()
     }
 
@@ -414,7 +424,7 @@ impl<const D: usize> GlobalMap<D> {
         key: &VoxelKey,
         vocab: &Codebook<D, K>,
     ) -> Option<(usize, f32)> {
-        self.posterior(key).and_then(|p| argmax(vocab, &p.mean))
+        self.posterior(key).and_then(|p| vocab.argmax(&p.mean))
     }
 
     /// Cosine score of one category (a text query) at a voxel.
@@ -440,20 +450,6 @@ impl<const D: usize> ObsLookup<D> for GlobalMap<D> {
     fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         self.observations(&key)
     }
-}
-
-/// Index and score of the best category for a mean (None for an empty vocabulary).
-pub fn argmax<const D: usize, const K: usize>(
-    vocab: &Codebook<D, K>,
-    mean: &[f32; D],
-) -> Option<(usize, f32)> {
-    let mut scores = [0.0f32; K];
-    let n = vocab.scores(mean, &mut scores);
-    scores[..n]
-        .iter()
-        .copied()
-        .enumerate()
-        .max_by(|a, b| a.1.total_cmp(&b.1))
 }
 
 #[cfg(test)]
@@ -579,5 +575,53 @@ mod tests {
         let n = g.posterior(&VoxelKey::new(2, 2, 3)).unwrap();
         assert!((n.lambda - 7.0 * 0.7671).abs() < 1e-3);
         assert!(g.posterior(&VoxelKey::new(9, 9, 9)).is_none());
+    }
+
+    /// Live contributions arriving in any order merge to the same bits, and the lookups (kept in step
+    /// with every summary) equal the core's gather over [`GlobalMap::observations`] exactly.
+    #[test]
+    fn lookups_equal_the_core_gather_whatever_the_arrival_order() {
+        let k = VoxelKey::new(1, 2, 3);
+        let parts = [
+            (3u16, 4u32, 0.7f32),
+            (1, 9, -0.3),
+            (2, 2, 0.11),
+            (1, 1, 0.5),
+        ];
+        let mut forward = map();
+        let mut backward = map();
+        for (robot, residency, m) in parts {
+            forward.apply(robot, 1, 0, &summary(residency, false, 1.0 + m.abs(), m));
+        }
+        for (robot, residency, m) in parts.iter().rev().copied() {
+            backward.apply(robot, 1, 0, &summary(residency, false, 1.0 + m.abs(), m));
+        }
+        let (a, b) = (
+            forward.observations(&k).unwrap(),
+            backward.observations(&k).unwrap(),
+        );
+        assert_eq!(a.mean.map(f32::to_bits), b.mean.map(f32::to_bits));
+        assert_eq!(a.scatter.map(f32::to_bits), b.scatter.map(f32::to_bits));
+        assert_eq!(forward, backward);
+        // A live copy replaced and one closed: the cached merge follows.
+        forward.apply(1, 1, 1, &summary(9, false, 4.0, 0.25));
+        forward.apply(2, 1, 1, &summary(2, true, 2.0, 0.125));
+        struct Literal<'a>(&'a GlobalMap<D>);
+        impl ObsLookup<D> for Literal<'_> {
+            fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
+                self.0.observations(&key)
+            }
+        }
+        let lut: latentbki::KernelLut = latentbki::KernelLut::new(forward.map_config()).unwrap();
+        let all = forward.posteriors();
+        assert_eq!(all.len(), 27, "one voxel reaches its 3×3×3 neighbours");
+        for (key, p) in &all {
+            let want = latentbki::gather(&lut, &Literal(&forward), *key)
+                .unwrap()
+                .posterior(&forward.prior());
+            assert_eq!(forward.posterior(key).as_ref(), Some(&want), "{key:?}");
+            assert_eq!(p.mean.map(f32::to_bits), want.mean.map(f32::to_bits));
+            assert_eq!(p.lambda.to_bits(), want.lambda.to_bits());
+        }
     }
 }

@@ -77,6 +77,7 @@ pub enum ObsMapError {
 }
 
 /// An unbounded f32 map of per-voxel observation statistics.
+#[derive(Clone)]
 pub struct ObsMap<const D: usize> {
     config: MapConfig,
     lut: KernelLut,
@@ -196,6 +197,17 @@ impl<const D: usize> ObsMap<D> {
         let b = self.block_index_or_insert(bk);
         let slot = self.slot_or_insert(b, local, key);
         self.stats[slot as usize].merge(obs);
+    }
+
+    /// Replace a voxel's observations (e.g. the base station's merged statistics after a live update).
+    pub fn set_observations(&mut self, key: VoxelKey, obs: &ObsStats<D>) {
+        let (bk, local) = block_of(key);
+        if obs.is_empty() && self.observed(key).is_none() {
+            return; // nothing to hold, nothing held
+        }
+        let b = self.block_index_or_insert(bk);
+        let slot = self.slot_or_insert(b, local, key);
+        self.stats[slot as usize] = *obs;
     }
 
     /// The posterior of one voxel (the prior if nothing is in reach).
@@ -365,6 +377,17 @@ impl<const D: usize> ObsMap<D> {
     /// Points integrated so far.
     pub fn points(&self) -> u64 {
         self.points
+    }
+}
+
+impl<const D: usize> core::fmt::Debug for ObsMap<D> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ObsMap")
+            .field("config", &self.config)
+            .field("observed_voxels", &self.stats.len())
+            .field("blocks", &self.blocks.len())
+            .field("points", &self.points)
+            .finish_non_exhaustive()
     }
 }
 

@@ -266,9 +266,7 @@ impl RobotRig {
 
 /// Index of the best category for a mean.
 pub fn label(vocab: &Codebook<D, VOCAB_CAP>, mean: &[f32; D]) -> usize {
-    host_sim::base_station::global_map::argmax(vocab, mean)
-        .unwrap()
-        .0
+    vocab.argmax(mean).unwrap().0
 }
 
 /// Feed bytes to a base station in pseudo-random chunks (1..=700 bytes).
