@@ -2,7 +2,7 @@
 //!
 //! [`Scene`] keeps what the view shows of every observed voxel (a [`VoxelRow`]: its decoded class, the
 //! query's cosine score, its E-optimality and the robots that observed it), decoded from the map with the
-//! same calls `map-query` makes ([`GlobalMap::posterior`], [`argmax`], [`Codebook::score`]), so the view
+//! same calls `map-query` makes ([`GlobalMap::posterior`], [`Codebook::argmax`], [`Codebook::score`]), so the view
 //! and the command agree voxel for voxel. A change of one voxel changes the posteriors of every observed
 //! voxel within the kernel's reach, so [`Scene::update`] re-decodes those too and reports the blocks
 //! they fall in; only those blocks' entities are sent again. The exact value of every cube is in its
@@ -10,7 +10,7 @@
 //! selection and which the tests read back.
 
 use crate::export::{label_colour, ramp};
-use crate::global_map::{argmax, GlobalMap};
+use crate::global_map::GlobalMap;
 use foxglove::messages::{
     scene_entity_deletion, Color, CubePrimitive, KeyValuePair, Pose, Quaternion, SceneEntity,
     SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
@@ -220,7 +220,7 @@ impl<const D: usize, const K: usize> Scene<D, K> {
                 robots.dedup();
                 Some(VoxelRow {
                     mean: p.mean,
-                    class: vocab.and_then(|cb| argmax(cb, &p.mean)),
+                    class: vocab.and_then(|cb| cb.argmax(&p.mean)),
                     heat: query.map(|q| q.score(&p.mean, 0)),
                     e_opt: p.optimality(Spread::AuthorsTVar).map(|o| o.e),
                     robots,
