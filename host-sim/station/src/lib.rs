@@ -22,6 +22,8 @@ pub mod global_map;
 pub mod obs_map;
 pub mod png_io;
 pub mod store;
+#[cfg(feature = "view")]
+pub mod view;
 
 pub use global_map::{
     Applied, ContributionId, GlobalMap, GlobalVoxel, RecordError, Uncertainty, VOCAB_CAP,
@@ -153,6 +155,8 @@ pub struct BaseStation<const D: usize> {
     dirty_voxels: HashSet<VoxelKey>,
     dirty_sessions: HashSet<(u16, u32)>,
     config_dirty: bool,
+    /// Changed since the last [`BaseStation::take_watched`] (a live view's hook), if watched.
+    watched: Option<HashSet<VoxelKey>>,
 }
 
 impl<const D: usize> BaseStation<D> {
@@ -190,6 +194,7 @@ impl<const D: usize> BaseStation<D> {
             dirty_voxels,
             dirty_sessions: HashSet::new(),
             config_dirty,
+            watched: None,
         }
     }
 
@@ -286,6 +291,17 @@ impl<const D: usize> BaseStation<D> {
         Ok(())
     }
 
+    /// Track the voxels every frame changes for [`BaseStation::take_watched`] (a live view).
+    pub fn watch(&mut self) {
+        self.watched.get_or_insert_with(HashSet::new);
+    }
+    /// The voxels changed since the last call (empty unless [`BaseStation::watch`]ed).
+    pub fn take_watched(&mut self) -> Vec<VoxelKey> {
+        self.watched
+            .as_mut()
+            .map_or_else(Vec::new, |w| w.drain().collect())
+    }
+
     /// Keep a copy of every accepted frame body (tests audit them against what was sent).
     pub fn keep_journal(&mut self) {
         self.journal = Some(Vec::new());
@@ -365,7 +381,14 @@ impl<const D: usize> BaseStation<D> {
             let Some(map) = &mut self.map else { continue };
             // Every summary was validated by the receiver before the frame was accepted.
             for s in batch.iter::<D>(frame.config.codec).flatten() {
-                Self::apply(map, &mut self.stats, &mut self.dirty_voxels, &header, &s);
+                Self::apply(
+                    map,
+                    &mut self.stats,
+                    &mut self.dirty_voxels,
+                    self.watched.as_mut(),
+                    &header,
+                    &s,
+                );
             }
         }
         for a in std::mem::take(&mut self.acks).into_values() {
@@ -385,6 +408,7 @@ impl<const D: usize> BaseStation<D> {
         map: &mut GlobalMap<D>,
         stats: &mut ReceiveStats,
         dirty: &mut HashSet<VoxelKey>,
+        watched: Option<&mut HashSet<VoxelKey>>,
         header: &latentbki::wire::FrameHeader,
         s: &Summary<D>,
     ) {
@@ -397,6 +421,9 @@ impl<const D: usize> BaseStation<D> {
             }
         }
         dirty.insert(s.key);
+        if let Some(w) = watched {
+            w.insert(s.key);
+        }
         stats.clamped_mean_scale += u32::from(s.at_ceiling.mean_scale);
         stats.clamped_psi += u32::from(s.at_ceiling.psi);
     }
