@@ -116,19 +116,84 @@ pub fn log2(x: f32) -> f32 {
     } else {
         (bits, 0.0)
     };
-    let mut e = ((bits >> 23) as i32 - 127) as f32 - bias;
-    let mut m = f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000);
-    // Centre the mantissa on 1: m in [√½, √2).
-    if m > core::f32::consts::SQRT_2 {
-        m *= 0.5;
-        e += 1.0;
-    }
+    let e = ((bits >> 23) as i32 - 127) as f32 - bias;
+    log2_parts(e, f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000))
+}
+
+/// log₂(2^e · m) for a mantissa m in [1, 2): the one polynomial behind [`log2`] and [`log2_normal`].
+#[inline(always)]
+fn log2_parts(e: f32, m: f32) -> f32 {
+    // Centre the mantissa on 1: m in [√½, √2). Written as selects, so loops over it vectorise.
+    let big = m > core::f32::consts::SQRT_2;
+    let m = if big { m * 0.5 } else { m };
+    let e = if big { e + 1.0 } else { e };
     // log₂ m = 2/ln 2 · atanh(t), t = (m − 1)/(m + 1) ∈ [−0.172, 0.172]: the odd series to t⁹ leaves an
     // error below 2·10⁻⁸ (t¹¹/11 · 2/ln 2).
     let t = (m - 1.0) / (m + 1.0);
     let t2 = t * t;
     let series = 1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0))));
     e + 2.0 * core::f32::consts::LOG2_E * t * series
+}
+
+// Branch-free variants for loops that must vectorise (the host's uncertainty sampler,
+// [`crate::sampling`]): no edge cases handled, so each is a straight line of f32 operations.
+
+/// log₂ x for positive normal x, branch-free ([`log2`] without its checks): error below 3e-7
+/// absolute plus the f32 rounding of the result.
+#[inline(always)]
+pub(crate) fn log2_normal(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let e = ((bits >> 23) as i32 - 127) as f32;
+    log2_parts(e, f32::from_bits((bits & 0x007F_FFFF) | 0x3F80_0000))
+}
+
+/// 2^y for −126 < y < 127, branch-free (vectorises): relative error below 3e-7.
+#[inline(always)]
+pub(crate) fn exp2(y: f32) -> f32 {
+    // Round to the nearest integer by adding 1.5·2²³ (no float → int conversion, which would not
+    // vectorise with Rust's saturating semantics): the integer sits in the low mantissa bits.
+    const MAGIC: f32 = 12_582_912.0;
+    let r = y + MAGIC;
+    let i = r.to_bits().wrapping_sub(MAGIC.to_bits()) as i32;
+    let x = (y - (r - MAGIC)) * core::f32::consts::LN_2; // |x| ≤ ½ ln 2
+                                                         // e^x, |x| ≤ 0.347: Taylor to x⁶ leaves < 2e-8.
+    let p = 1.0
+        + x * (1.0
+            + x * (0.5
+                + x * (1.0 / 6.0 + x * (1.0 / 24.0 + x * (1.0 / 120.0 + x * (1.0 / 720.0))))));
+    p * f32::from_bits((i.wrapping_add(127) as u32) << 23)
+}
+
+/// √x for finite x ≥ 0, branch-free (vectorises, unlike `libm::sqrtf`'s scalar instruction): the
+/// bit-trick reciprocal square root and three Newton steps (relative error < 2e-7), times x.
+#[inline(always)]
+pub(crate) fn sqrt(x: f32) -> f32 {
+    let mut y = f32::from_bits(0x5F37_59DF_u32.wrapping_sub(x.to_bits() >> 1));
+    let h = 0.5 * x;
+    y *= 1.5 - h * y * y;
+    y *= 1.5 - h * y * y;
+    y *= 1.5 - h * y * y;
+    x * y
+}
+
+/// (sin πx, cos πx) for |x| < 1, branch-free (vectorises): the half angle h = πx/2 by Taylor series
+/// (to h¹¹ and h¹², error below 6e-8), then the double-angle formulas.
+#[inline(always)]
+pub(crate) fn sin_cos_pi(x: f32) -> (f32, f32) {
+    let h = x * core::f32::consts::FRAC_PI_2;
+    let h2 = h * h;
+    let s = h
+        * (1.0
+            + h2 * (-1.0 / 6.0
+                + h2 * (1.0 / 120.0
+                    + h2 * (-1.0 / 5040.0 + h2 * (1.0 / 362_880.0 + h2 * (-1.0 / 39_916_800.0))))));
+    let c = 1.0
+        + h2 * (-0.5
+            + h2 * (1.0 / 24.0
+                + h2 * (-1.0 / 720.0
+                    + h2 * (1.0 / 40_320.0
+                        + h2 * (-1.0 / 3_628_800.0 + h2 * (1.0 / 479_001_600.0))))));
+    (2.0 * s * c, c * c - s * s)
 }
 
 #[cfg(test)]
@@ -224,5 +289,37 @@ mod tests {
         assert_eq!(log2(8.0), 3.0);
         assert_eq!(log2(0.0), f32::NEG_INFINITY);
         assert_eq!(log2(-1.0), f32::NEG_INFINITY);
+    }
+
+    #[test]
+    fn branch_free_variants_are_accurate() {
+        let mut worst = [0.0f64; 3];
+        for i in 1..200_000 {
+            let x = i as f32 / 200_000.0; // (0, 1): the polar method's W, Box–Muller's u
+            let l = log2_normal(x) as f64;
+            // Absolute error plus the f32 rounding of the result.
+            worst[0] = worst[0].max((l - (x as f64).log2()).abs() / (1.0 + l.abs()));
+            let y = i as f32 * (46.0 / 200_000.0);
+            let e = exp2(y) as f64;
+            worst[1] = worst[1].max((e / 2f64.powf(y as f64) - 1.0).abs());
+            let z = x * 1e4 * (i as f32);
+            let r = sqrt(z) as f64;
+            worst[2] = worst[2].max((r / (z as f64).sqrt() - 1.0).abs());
+        }
+        assert!(
+            worst[0] < 5e-7 && worst[1] < 5e-7 && worst[2] < 5e-7,
+            "{worst:?}"
+        );
+        assert_eq!(sqrt(0.0), 0.0);
+        let mut trig = 0.0f64;
+        for i in -100_000..100_000 {
+            let x = i as f32 / 100_000.0;
+            let (s, c) = sin_cos_pi(x);
+            let a = core::f64::consts::PI * x as f64;
+            trig = trig
+                .max((s as f64 - libm::sin(a)).abs())
+                .max((c as f64 - libm::cos(a)).abs());
+        }
+        assert!(trig < 5e-7, "sin/cos error {trig:e}");
     }
 }

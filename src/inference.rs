@@ -60,35 +60,14 @@ pub struct Optimality {
 }
 
 impl<const D: usize> VoxelStats<D> {
-    /// The expectation of the feature, μ (meaningful for λ > 1).
-    pub fn expectation(&self) -> &[f32; D] {
-        &self.mean
-    }
-
     /// Multiplier (λ+1)/λ² turning Ψ into the Student-t scale; `None` for λ ≤ 0.
     pub fn scale_factor(&self) -> Option<f32> {
         (self.lambda > 0.0).then(|| (self.lambda + 1.0) / (self.lambda * self.lambda))
     }
 
-    /// Multiplier λ/(λ−2) · (λ+1)/λ² turning Ψ into the predictive covariance; `None` for λ ≤ 2.
-    pub fn covariance_factor(&self) -> Option<f32> {
-        Spread::StudentTCovariance.factor(self.lambda)
-    }
-
-    /// The Student-t scale diagonal (λ+1)/λ² · Ψ, for any λ > 0.
-    pub fn predictive_scale(&self) -> Option<[f32; D]> {
-        let f = self.scale_factor()?;
-        Some(self.psi.map(|p| f * p))
-    }
-
     /// The authors' t_var = (λ+1)/λ² · Ψ, with their gate λ > 2.
     pub fn t_var(&self) -> Option<[f32; D]> {
         self.spread(Spread::AuthorsTVar)
-    }
-
-    /// The predictive covariance diagonal λ/(λ−2) · scale, defined for λ > 2.
-    pub fn predictive_variance(&self) -> Option<[f32; D]> {
-        self.spread(Spread::StudentTCovariance)
     }
 
     /// The diagonal of `spread`; `None` for λ ≤ 2.
@@ -200,7 +179,7 @@ fn exp2(x: f32) -> f32 {
     if !(x > -126.0) {
         return 0.0;
     }
-    crate::sampling::exp2_fast(x.min(127.0))
+    crate::f32math::exp2(x.min(127.0))
 }
 
 #[cfg(test)]
@@ -218,10 +197,11 @@ mod tests {
     #[test]
     fn both_conventions_follow_their_formulas() {
         let v = voxel(4.0);
-        let scale = v.predictive_scale().unwrap();
+        let f = v.scale_factor().unwrap();
+        let scale = v.psi.map(|p| f * p);
         assert!((scale[0] - 5.0 / 16.0 * 4.0).abs() < 1e-6);
         assert_eq!(v.t_var().unwrap(), scale, "t_var is the Student-t scale");
-        let var = v.predictive_variance().unwrap();
+        let var = v.spread(Spread::StudentTCovariance).unwrap();
         assert!((var[0] - 2.0 * 5.0 / 16.0 * 4.0).abs() < 1e-6);
         let cov = v.optimality(Spread::StudentTCovariance).unwrap();
         assert!((cov.e - var[0]).abs() < 1e-6);
@@ -239,7 +219,7 @@ mod tests {
             assert!(voxel(f32::NAN).optimality(s).is_none());
         }
         assert!(voxel(2.0).t_var().is_none());
-        assert!(voxel(0.0).predictive_scale().is_none());
+        assert!(voxel(0.0).scale_factor().is_none());
         assert_eq!(v.e_optimality(), Some(cov.e));
         assert_eq!(v.d_optimality(), Some(cov.d));
     }

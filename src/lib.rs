@@ -58,12 +58,14 @@
 //! ## Modules
 //!
 //! They follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
-//! (voxel keys, poses) → [`batch`] (validating a point) → [`obs`] (what a voxel observed, and gathering
-//! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`]
+//! (voxel keys, poses; [`fixed_pose`]: integer sensor points without float) → [`batch`] (validating a
+//! point) → [`obs`] (what a voxel observed — in f32, or as exact integer sums of int8 codes — and gathering
+//! posteriors through the kernel; [`forget`]: letting old observations fade) → [`stats`] (the posterior
+//! update) → [`inference`]
 //! and [`sampling`] (uncertainty; [`info_gain`]: where to look next) →
 //! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
 //! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder) →
-//! [`mapper`] (all of it as one value). [`f32math`] holds the single-precision elementary functions the
+//! [`mapper`] (all of it as one value; the firmware author's guide is `docs/firmware.md`). [`f32math`] holds the single-precision elementary functions the
 //! device path uses.
 #![no_std]
 #![deny(missing_docs)]
@@ -77,6 +79,8 @@ pub mod batch;
 pub mod config;
 pub mod decode;
 pub mod f32math;
+pub mod fixed_pose;
+pub mod forget;
 pub mod frame;
 pub mod inference;
 pub mod info_gain;
@@ -108,6 +112,7 @@ pub use sink::{Evicted, EvictionSink, SinkFull};
 // ----- statistics and posteriors (the base station and the simulator share them with the device)
 // (`locate` and `spread` are the building blocks of host-side maps: the simulator's methods use them.)
 pub use batch::{locate, spread};
+pub use forget::{Forgetting, Stamped};
 pub use kernel::KernelLut;
 pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
 pub use stats::VoxelStats;

@@ -14,6 +14,7 @@
 
 use crate::batch::Rejection;
 use crate::config::{ConfigError, MapConfig};
+use crate::fixed_pose::FixedPose;
 use crate::frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
 use crate::key::to_map_frame;
 use crate::local_map::{LocalMap, HOT_VOXELS};
@@ -163,6 +164,7 @@ impl<
         SensorFrame {
             mapper: self,
             pose: *pose,
+            fixed: None,
         }
     }
 
@@ -255,6 +257,8 @@ pub struct SensorFrame<
 > {
     mapper: &'m mut Mapper<D, CAP, P, QB, N, H>,
     pose: Isometry3<f32>,
+    /// The pose in fixed point, made at the first integer point (`Some(None)`: not representable).
+    fixed: Option<Option<FixedPose>>,
 }
 
 impl<
@@ -296,6 +300,49 @@ impl<
         let m = &mut self.mapper;
         m.map
             .add_point_i8(to_map_frame(&self.pose, point), codes, &mut m.encoder)
+    }
+
+    /// [`Self::add_point_i8`] for a point in integer millimetres (what a ToF or a LiDAR reports): the
+    /// frame's pose is turned into fixed point once ([`FixedPose`]), so the point reaches its voxel with
+    /// 32-bit integer arithmetic only — no float operation on the whole per-point path, for an MCU without
+    /// an FPU. Coordinates beyond ±[`crate::fixed_pose::MAX_POINT_MM`] are refused as
+    /// [`Rejection::KeyOutOfRange`]; a pose fixed point cannot hold (non-finite, or beyond 2²² voxels
+    /// from the origin) refuses every point as [`Rejection::NonFinitePosition`].
+    pub fn add_point_mm_i8(
+        &mut self,
+        point_mm: [i32; 3],
+        codes: &[i8; D],
+    ) -> Result<(), Rejection> {
+        let voxel = self.mapper.map.config().voxel_size();
+        let pose = &self.pose;
+        let fixed = *self
+            .fixed
+            .get_or_insert_with(|| FixedPose::new(pose, voxel));
+        let m = &mut self.mapper;
+        let Some(fixed) = fixed else {
+            m.map.refuse(Rejection::NonFinitePosition);
+            return Err(Rejection::NonFinitePosition);
+        };
+        let Some(key) = fixed.key_of(point_mm) else {
+            m.map.refuse(Rejection::KeyOutOfRange);
+            return Err(Rejection::KeyOutOfRange);
+        };
+        m.map.add_point_i8_in(key, codes, &mut m.encoder)
+    }
+
+    /// [`Self::add_point_mm_i8`] for a batch (pairs; an unpaired tail is counted as
+    /// [`Rejection::Unpaired`]). Returns how many the map took.
+    pub fn add_points_mm_i8(&mut self, points_mm: &[[i32; 3]], codes: &[[i8; D]]) -> usize {
+        let mut taken = 0;
+        for (p, c) in points_mm.iter().zip(codes) {
+            if self.add_point_mm_i8(*p, c).is_ok() {
+                taken += 1;
+            }
+        }
+        for _ in 0..points_mm.len().abs_diff(codes.len()) {
+            self.mapper.map.refuse(Rejection::Unpaired);
+        }
+        taken
     }
 
     /// The map, read-only (e.g. for a report between chunks).

@@ -241,6 +241,21 @@ pub fn code_in_range<const D: usize>(codes: &[i8; D]) -> bool {
     bad == 0 && tail_ok
 }
 
+// Defined here rather than in `stats`, so that `stats` (the posterior) does not depend on `obs` (what
+// feeds it): the dependency runs one way.
+impl<const D: usize> VoxelStats<D> {
+    /// Combine with observation statistics seen through kernel weight `k` (the paper's update with
+    /// k̄ = k·n, ȳ = m, S̄ = k·S). `k · obs.count ≤ 0` leaves `self` unchanged.
+    #[inline]
+    pub fn absorb_observations(&mut self, k: f32, obs: &ObsStats<D>) {
+        combine(
+            (&mut self.lambda, &mut self.mean, &mut self.psi),
+            k,
+            (obs.count, &obs.mean, &obs.scatter),
+        );
+    }
+}
+
 /// Read access to a map of per-voxel observation statistics.
 pub trait ObsLookup<const D: usize> {
     /// The observations of voxel `key`, if any point fell in it (by value: a quantized map decodes them).

@@ -19,7 +19,7 @@
 //! Every path keeps moments in this centred form (mean and scatter about the mean), never raw sums
 //! Σky, Σky²: the raw form S̄ = Σky² − k̄ȳ² cancels catastrophically when the features are far from zero
 //! compared with their spread (mean 100, spread 0.01: S̄ off by 9–26× in f32). The maps add a point to its
-//! voxel's observation statistics with Welford's update ([`crate::obs::ObsStats::add_point`], one division
+//! voxel's observation statistics with Welford's update (`ObsStats::add_point` in `obs`, one division
 //! per point) and gather a target's batch from its neighbours with Chan's merge (the same `combine`); the
 //! test `offset_features_keep_their_scatter` holds Ψ to 1e-3 relative of f64 for such features.
 
@@ -64,17 +64,6 @@ impl<const D: usize> VoxelStats<D> {
         );
     }
 
-    /// Combine with observation statistics seen through kernel weight `k` (the paper's update with
-    /// k̄ = k·n, ȳ = m, S̄ = k·S). `k · obs.count ≤ 0` leaves `self` unchanged.
-    #[inline]
-    pub fn absorb_observations(&mut self, k: f32, obs: &crate::obs::ObsStats<D>) {
-        combine(
-            (&mut self.lambda, &mut self.mean, &mut self.psi),
-            k,
-            (obs.count, &obs.mean, &obs.scatter),
-        );
-    }
-
     /// Combine with a batch's moments (the paper's update).
     #[inline]
     pub fn absorb(&mut self, batch: &Self) {
@@ -93,35 +82,6 @@ impl<const D: usize> VoxelStats<D> {
             update_dim_point(&mut self.mean[i], &mut self.psi[i], gain, cross, y[i]);
         }
         self.lambda += k;
-    }
-
-    /// The data part of a posterior: `self = prior ⊕ data`, solved for `data`.
-    ///
-    /// Needed to merge two maps built from the same prior without counting the prior twice. With the
-    /// default prior (λ₀ = 0) this is just Ψ − Ψ₀.
-    pub fn without_prior(&self, prior: &Self) -> Self {
-        let w = self.lambda - prior.lambda;
-        if !(w > 0.0) {
-            return Self::EMPTY;
-        }
-        let mut data = Self {
-            lambda: w,
-            ..Self::EMPTY
-        };
-        let back = self.lambda / w; // λ_C / w
-        let cross = prior.lambda * w / self.lambda;
-        for i in 0..D {
-            data.mean[i] = prior.mean[i] + back * (self.mean[i] - prior.mean[i]);
-            let d = data.mean[i] - prior.mean[i];
-            data.psi[i] = (self.psi[i] - prior.psi[i] - cross * d * d).max(0.0);
-        }
-        data
-    }
-
-    /// Merge another posterior built independently from the same `prior` (e.g. another robot's map of the
-    /// same voxel): the result is the posterior of both sets of observations.
-    pub fn merge(&mut self, other: &Self, prior: &Self) {
-        self.absorb(&other.without_prior(prior));
     }
 
     /// Whether every number is finite (a guard for data that came from outside).
@@ -335,27 +295,5 @@ mod tests {
         v.absorb_point(f32::NAN, &[1.0; 3]);
         v.absorb(&VoxelStats::EMPTY);
         assert_eq!(v, before);
-    }
-
-    #[test]
-    fn prior_is_removed_exactly_once() {
-        let prior = VoxelStats::<2> {
-            lambda: 1.5,
-            mean: [0.2, -0.1],
-            psi: [0.7, 0.3],
-        };
-        let data = VoxelStats::<2> {
-            lambda: 3.0,
-            mean: [1.0, 2.0],
-            psi: [0.5, 4.0],
-        };
-        let mut post = prior;
-        post.absorb(&data);
-        let back = post.without_prior(&prior);
-        assert!((back.lambda - data.lambda).abs() < 1e-5);
-        for d in 0..2 {
-            assert!((back.mean[d] - data.mean[d]).abs() < 1e-5);
-            assert!((back.psi[d] - data.psi[d]).abs() < 1e-4);
-        }
     }
 }

@@ -137,13 +137,16 @@ proptest! {
         }
         assert_close("streaming", &b, &exact, &all, &prior);
 
-        // (c) merge: two maps of the same voxel built from the same prior, merged.
+        // (c) merge: two maps' statistics of the same voxel (data only, as the maps keep them), merged,
+        // then the prior once.
         let cut = split.min(all.len());
-        let (mut c, mut other) = (start, start);
+        let (mut c, mut other) = (VoxelStats::<D>::EMPTY, VoxelStats::<D>::EMPTY);
         for (k, y) in &all[..cut] { c.absorb_point(*k as f32, &f32s(y)); }
         for (k, y) in &all[cut..] { other.absorb_point(*k as f32, &f32s(y)); }
-        c.merge(&other, &start);
-        assert_close("merge", &c, &exact, &all, &prior);
+        c.absorb(&other);
+        let mut merged = start;
+        merged.absorb(&c);
+        assert_close("merge", &merged, &exact, &all, &prior);
 
         // (d) grouped: points grouped with unit weight, each group seen through one kernel weight
         // (what `spread` does for points that share a voxel).

@@ -267,3 +267,59 @@ fn a_long_visit_merges_its_sums_every_255_points_and_counts_each_point_once() {
         );
     }
 }
+
+#[test]
+fn integer_millimetre_points_reach_the_same_voxels() {
+    let (pts, codes) = points(2000, 20);
+    let pose = Isometry3::from_parts(
+        Translation3::new(0.5, -0.2, 0.1),
+        latentbki::nalgebra::UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+    );
+    // The points as a sensor in millimetres reports them (0.05 m from the faces: away from rounding).
+    let pts_mm: Vec<[i32; 3]> = pts
+        .iter()
+        .map(|p| p.map(|v| (v * 1000.0).round() as i32))
+        .collect();
+    let run = |mm: bool| {
+        let mut robot = Box::new(Robot::EMPTY);
+        robot.configure(&setup(true)).unwrap();
+        let mut frame = robot.begin_frame(&pose);
+        let taken = if mm {
+            frame.add_points_mm_i8(&pts_mm, &codes)
+        } else {
+            frame.add_points_i8(&pts, &codes)
+        };
+        assert_eq!(taken, pts.len());
+        let mut voxels: Vec<_> = robot.map().iter().map(|v| (v.key, v.obs)).collect();
+        voxels.sort_by_key(|v| v.0);
+        voxels
+    };
+    let (a, b) = (run(true), run(false));
+    assert_eq!(a.len(), b.len());
+    let same = a
+        .iter()
+        .zip(&b)
+        .filter(|(x, y)| x.0 == y.0 && x.1.count == y.1.count)
+        .count();
+    assert!(same * 100 >= a.len() * 95, "{same} of {} voxels", a.len());
+    // Refusals are counted: a coordinate beyond ±32.7 m, a pose fixed point cannot hold, unpaired.
+    let mut robot = Box::new(Robot::EMPTY);
+    robot.configure(&setup(true)).unwrap();
+    let mut frame = robot.begin_frame(&pose);
+    assert_eq!(
+        frame.add_point_mm_i8([40_000, 0, 0], &codes[0]),
+        Err(Rejection::KeyOutOfRange)
+    );
+    assert_eq!(frame.add_points_mm_i8(&pts_mm[..3], &codes[..2]), 2);
+    let far = Isometry3::translation(1e7, 0.0, 0.0);
+    let mut frame = robot.begin_frame(&far);
+    assert_eq!(
+        frame.add_point_mm_i8([0, 0, 0], &codes[0]),
+        Err(Rejection::NonFinitePosition)
+    );
+    let r = robot.map().rejections();
+    assert_eq!(
+        (r.key_out_of_range, r.unpaired, r.non_finite_position),
+        (1, 1, 1)
+    );
+}

@@ -4,7 +4,6 @@
 //! Run: `cargo bench -p host-sim --bench integrate`.
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
-use host_sim::order::morton_order;
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::Isometry3;
 use latentbki::{packed_len, Evicted, LocalMap, MapConfig, SinkFull};
@@ -45,19 +44,6 @@ fn bench(c: &mut Criterion) {
                 |m| {
                     for (p, y) in pts.iter().zip(&feats) {
                         let _ = m.add_point(*p, y, &mut discard);
-                    }
-                },
-                BatchSize::PerIteration,
-            )
-        });
-        // The same batch put in Morton order first (the sort is inside the timed region).
-        group.bench_function(format!("local_map_morton/{name}"), |b| {
-            b.iter_batched_ref(
-                fresh,
-                |m| {
-                    for i in morton_order(&pts, config.voxel_size()) {
-                        let i = i as usize;
-                        let _ = m.add_point(pts[i], &feats[i], &mut discard);
                     }
                 },
                 BatchSize::PerIteration,

@@ -4,13 +4,14 @@
 
 pub mod base_station;
 pub mod bench;
+pub mod changing;
 pub mod cli_args;
 pub mod demo_link;
 pub mod eval;
+pub mod explore;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;
-pub mod order;
 pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]

@@ -516,6 +516,8 @@ pub struct Chunk<const D: usize, const K: usize> {
     pub features: [[f32; D]; K],
     /// Their features as int8 codes (scenarios with int8 features).
     pub codes: [[i8; D]; K],
+    /// The points in integer millimetres, as a range sensor reports them (scenarios with int8 features).
+    pub points_mm: [[i32; 3]; K],
 }
 
 impl<const D: usize, const K: usize> Chunk<D, K> {
@@ -524,6 +526,7 @@ impl<const D: usize, const K: usize> Chunk<D, K> {
         points: [[0.0; 3]; K],
         features: [[0.0; D]; K],
         codes: [[0; D]; K],
+        points_mm: [[0; 3]; K],
     };
 }
 
@@ -547,7 +550,8 @@ pub struct FrameReport {
 }
 
 /// Generate frame `frame` of `scene` in chunks of `K` points and integrate it into `mapper` as one sensor
-/// frame, as f32 features or (`int8_scale` > 0) as int8 codes of that scale ([`Mapper::begin_frame`], then each chunk). The map's work — and only it — runs between
+/// frame, as f32 features or (`int8_scale` > 0) as int8 codes of that scale with the points in integer
+/// millimetres (the all-integer path, [`latentbki::mapper::SensorFrame::add_points_mm_i8`]) ([`Mapper::begin_frame`], then each chunk). The map's work — and only it — runs between
 /// `probe.start()` and `probe.stop()` (once for the window move, once per chunk).
 pub fn integrate_frame<
     const D: usize,
@@ -581,6 +585,7 @@ pub fn integrate_frame<
                 chunk.points[n] = o.point;
                 if int8_scale > 0.0 {
                     quantize(&chunk.features[n], int8_scale, &mut chunk.codes[n]);
+                    chunk.points_mm[n] = o.point.map(|v| libm::roundf(v * 1000.0) as i32);
                 }
                 n += 1;
             }
@@ -590,7 +595,8 @@ pub fn integrate_frame<
         probe.start();
         // Refusals are counted by the map (`rejections`).
         if int8_scale > 0.0 {
-            batch.add_points_i8(&chunk.points[..n], &chunk.codes[..n]);
+            // An integer sensor and an int8 accelerator: no float operation per point.
+            batch.add_points_mm_i8(&chunk.points_mm[..n], &chunk.codes[..n]);
         } else {
             batch.add_points(&chunk.points[..n], &chunk.features[..n]);
         }

@@ -79,14 +79,23 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         let Some(slot) = self.slots.get_mut(s) else {
             return;
         };
-        if slot.codes.count > 0.0 {
-            slot.codes.decode_into(&mut self.scratch);
-        } else {
-            self.scratch = ObsStats::EMPTY;
-        }
-        if !hot.acc.is_empty() {
-            hot.acc.merge_into(&mut self.scratch, self.int8_scale);
-            slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
+        match (&hot.acc, slot.codes.count > 0.0) {
+            // A first visit of f32 points: its codes are its hot statistics (no decode, no merge).
+            (Acc::Float(o), false) => slot.codes = slot.codes.reencode(o, &mut self.dither),
+            (Acc::Codes(c), false) if c.count > 0 => {
+                c.write_obs(self.int8_scale, &mut self.scratch);
+                slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
+            }
+            (acc, seen) if !acc.is_empty() => {
+                if seen {
+                    slot.codes.decode_into(&mut self.scratch);
+                } else {
+                    self.scratch = ObsStats::EMPTY;
+                }
+                acc.merge_into(&mut self.scratch, self.int8_scale);
+                slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
+            }
+            _ => {}
         }
         slot.hot = 0;
         slot.flags |= REFERENCED;

@@ -417,16 +417,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         codes: &[i8; D],
         sink: &mut S,
     ) -> Result<(), Rejection> {
-        match self.take_point_i8(position, codes, sink) {
-            Ok(()) => {
-                self.counters.points = self.counters.points.wrapping_add(1);
-                Ok(())
-            }
-            Err(r) => {
-                self.rejections.count(r);
-                Err(r)
-            }
-        }
+        self.counted(|m| m.take_point_i8(position, codes, sink))
     }
 
     /// [`Self::add_points`] for int8 features.
@@ -449,6 +440,40 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         taken
     }
 
+    /// Add one point with an int8 feature whose voxel the caller found (e.g. an integer sensor point
+    /// through [`crate::fixed_pose::FixedPose`]): as [`Self::add_point_i8`], without any float operation.
+    pub fn add_point_i8_in<S: EvictionSink<D>>(
+        &mut self,
+        key: VoxelKey,
+        codes: &[i8; D],
+        sink: &mut S,
+    ) -> Result<(), Rejection> {
+        self.counted(|m| m.take_key_i8(key, codes, sink))
+    }
+
+    /// Count a point refused before it reached the map (e.g. a position no key can be found for).
+    pub fn refuse(&mut self, r: Rejection) {
+        self.rejections.count(r);
+    }
+
+    /// Run one point's intake: count it as taken or refused.
+    #[inline]
+    fn counted(
+        &mut self,
+        take: impl FnOnce(&mut Self) -> Result<(), Rejection>,
+    ) -> Result<(), Rejection> {
+        match take(self) {
+            Ok(()) => {
+                self.counters.points = self.counters.points.wrapping_add(1);
+                Ok(())
+            }
+            Err(r) => {
+                self.rejections.count(r);
+                Err(r)
+            }
+        }
+    }
+
     fn take_point_i8<S: EvictionSink<D>>(
         &mut self,
         position: [f32; 3],
@@ -456,6 +481,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         sink: &mut S,
     ) -> Result<(), Rejection> {
         let key = locate_key(&self.lut, position)?;
+        self.take_key_i8(key, codes, sink)
+    }
+
+    fn take_key_i8<S: EvictionSink<D>>(
+        &mut self,
+        key: VoxelKey,
+        codes: &[i8; D],
+        sink: &mut S,
+    ) -> Result<(), Rejection> {
         if !(self.int8_scale > 0.0) {
             return Err(Rejection::FeatureScale);
         }
