@@ -11,6 +11,7 @@
 #                   target's equals the host twin's)
 #   --table         rows of measure.sh's table: flash, whole-run stack, instructions/point at f = 3 on the
 #                   depth frame (per feature type)
+#   --MODE TARGET   only that target (thumbv6m or riscv32imac)
 #   --profile       after --table: each target's hot spots in one scenario's counted regions (PROFILE_SCENARIO,
 #                   default depth_f3_i8), from a second run with the plugin's per-PC profile (measure.sh's
 #                   PROFILE=1 calls it)
@@ -165,8 +166,10 @@ PY
 }
 
 mode=${1:---table}
+only=${2:-}   # optional: one target by its name (thumbv6m, riscv32imac)
 for t in "${TARGETS[@]}"; do
   read -r dir triple name <<< "$t"
+  [ -z "$only" ] || [ "$only" = "$name" ] || continue
   case $mode in
     --size) check_size "$dir" "$triple" "$name" ;;
     --panic-never) panic_never "$dir" "$triple" "$name" ;;

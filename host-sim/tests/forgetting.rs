@@ -72,6 +72,11 @@ fn forgetting_reads_each_voxel_as_its_decayed_observations() {
         let got = map.observed(*k).unwrap();
         assert!((got.count - want.count).abs() <= 1e-6 * want.count, "{k:?}");
         assert_eq!(got.mean, want.mean);
+        assert_eq!(
+            map.observed_count(*k),
+            got.count,
+            "counts read alone decay alike"
+        );
         for d in 0..2 {
             assert!((got.scatter[d] - want.scatter[d]).abs() <= 1e-5 * want.scatter[d].max(1.0));
         }

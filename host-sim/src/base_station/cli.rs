@@ -112,7 +112,8 @@ pub struct OutputArgs {
     /// Text query for the heatmap (a phrase of the built-in table).
     #[arg(long)]
     query: Option<String>,
-    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`.
+    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`, `-gain.png` (information
+    /// gain: where to look next).
     #[arg(long)]
     png: Option<PathBuf>,
     /// Pixels per voxel in the PNGs (1..=16384; the image is at most 16384 pixels per side).

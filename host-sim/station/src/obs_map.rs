@@ -453,6 +453,24 @@ impl<const D: usize> ObsLookup<D> for ObsMap<D> {
             s => Some(self.read(s as usize - 1)),
         }
     }
+
+    fn observed_count(&self, key: VoxelKey) -> f32 {
+        let (bk, local) = block_of(key);
+        let Some(&b) = self.index.get(&bk) else {
+            return 0.0;
+        };
+        match self.blocks[b as usize].1[local] {
+            0 => 0.0,
+            s => {
+                let slot = s as usize - 1;
+                let n = self.stats[slot].count;
+                match &self.forgetting {
+                    None => n,
+                    Some(f) => n * f.factor(self.now.saturating_sub(self.times[slot])),
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]
