@@ -46,9 +46,9 @@ pub fn run(args: &ViewBenchArgs) -> Result<()> {
         let mut obs = ObsStats::<D>::EMPTY;
         obs.count = 4.0;
         let class = &class_means[(i as usize / 97) % 12];
-        for d in 0..D {
-            obs.mean[d] = class[d] + 0.05 * (rng.unit() as f32 - 0.5);
-            obs.scatter[d] = 0.01 + 0.01 * rng.unit() as f32;
+        for ((m, s), c) in obs.mean.iter_mut().zip(&mut obs.scatter).zip(class) {
+            *m = c + 0.05 * (rng.unit() as f32 - 0.5);
+            *s = 0.01 + 0.01 * rng.unit() as f32;
         }
         let id = ContributionId {
             robot: 1,
