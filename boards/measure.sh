@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Firmware measurements on QEMU mps2-an386 (Cortex-M4F), reproducible:
+# Firmware measurements on QEMU mps2-an386 (Cortex-M4F), reproducible (and, through measure-targets.sh, the
+# same for thumbv6m on mps2-an385 and riscv32imac on riscv32 virt; rows appended to the table):
 #   flash and RAM   llvm-size of the firmware ELF, compared with the golden file
 #                   boards/qemu-mps2-an386/expected/firmware.size (BLESS=1 rewrites it)
 #   stack           high-water marks printed by the firmware (cortex-m-rt paint-stack)
@@ -48,6 +49,7 @@ if [ "${1:-}" = --panic-never ]; then
   cmp "$OUT/uart-panic-never.bin" "$OUT/uart-reporting.bin" || {
     echo "the panic-never build streams different bytes from the reporting build" >&2; exit 1; }
   echo "panic-never ok: links, runs, streams the same $(wc -c < "$OUT/uart-panic-never.bin") bytes"
+  bash ../measure-targets.sh --panic-never   # thumbv6m and riscv32imac
   exit 0
 fi
 
@@ -65,7 +67,10 @@ elif ! diff -u expected/firmware.size "$OUT/firmware.size"; then
   exit 1
 fi
 echo "size ok: $(cat "$OUT/firmware.size")"
-[ "${1:-}" = --size ] && exit 0
+if [ "${1:-}" = --size ]; then
+  bash ../measure-targets.sh --size   # thumbv6m and riscv32imac: flash within budget
+  exit 0
+fi
 
 # ---- run under the instruction-counting plugin
 OUT="$OUT/insncount.so" plugin/build.sh
@@ -136,24 +141,12 @@ for s in sorted(scen):
     print(f"| scenario {s} (f = {d['f']}) | {d['points']} points, {d['integrated']} integrated, peak {d['peak_voxels']} voxels held, "
           f"{d['evicted']} evicted, {d['frames_sent']} frames / {d['bytes_sent']} B sent | |")
 PY
+# The same table, continued: the targets without an FPU (thumbv6m, riscv32imac) on their QEMU boards.
+bash ../measure-targets.sh --table
 
 if [ "${PROFILE:-0}" = 1 ]; then
   "$LLVM_BIN/llvm-objdump" -d --no-show-raw-insn "$ELF" > "$OUT/firmware.dis"
-  python3 - "$OUT" <<'PY'
-import bisect, collections, re, sys
-out = sys.argv[1]
-funcs = sorted((int(m.group(1), 16), m.group(2)) for m in
-               (re.match(r'^([0-9a-f]+) <(.*)>:', l) for l in open(f"{out}/firmware.dis")) if m)
-starts = [a for a, _ in funcs]
-agg = collections.Counter()
-for l in open(f"{out}/insn.log"):
-    if l.startswith("pc "):
-        _, pc, n = l.split()
-        name = funcs[bisect.bisect_right(starts, int(pc, 16)) - 1][1]
-        agg[re.sub(r'17h[0-9a-f]{16}E$', '', name)] += int(n)
-tot = sum(agg.values())
-print(f"\nprofile of the marked regions ({tot} instructions):")
-for name, n in agg.most_common(12):
-    print(f"{n:>12} {100 * n / tot:5.1f}%  {name[:100]}")
-PY
+  echo
+  python3 ../profile.py "$OUT/firmware.dis" "$OUT/insn.log"
+  bash ../measure-targets.sh --profile
 fi

@@ -1,12 +1,16 @@
-//! End to end on an emulated Cortex-M4F: the firmware in `boards/qemu-mps2-an386` runs the self-test
-//! (`latentbki_selftest::SELF_TEST`) in QEMU with UART0 captured to a file; the host twin runs the same core
-//! code (`latentbki_selftest::run` on the same `Mapper`, scenarios, map capacity, encoder sizes and seeds)
-//! and must produce the
-//! same bytes. Both streams are decoded (COBS + CRC frames, wire summaries) into global maps that must be
-//! equal, non-trivial and semantically right (voxels decode to the category of the surface they lie on).
+//! End to end on every emulated target: the self-test firmware (`boards/selftest-firmware`) runs the
+//! self-test (`latentbki_selftest::SELF_TEST`) in QEMU with its UART captured to a file, on a Cortex-M4F
+//! (`boards/qemu-mps2-an386`, thumbv7em), on the Cortex-M0 instruction set (`boards/qemu-mps2-an385`,
+//! thumbv6m: soft float) and on RISC-V (`boards/qemu-riscv32-virt`, riscv32imac); the host twin runs the same
+//! core code (`latentbki_selftest::run` on the same `Mapper`, scenarios, map capacity, encoder sizes and
+//! seeds) and every target must produce the same bytes. Both streams are decoded (COBS + CRC frames, wire
+//! summaries) into global maps that must be equal, non-trivial and semantically right (voxels decode to the
+//! category of the surface they lie on).
 //!
-//! The firmware ELF is `$LATENTBKI_FIRMWARE_ELF` if set, else it is built (`cargo build --release` in the
-//! board directory). Without `qemu-system-arm` the test is skipped with a message — except in CI
+//! A board's firmware ELF is taken from its environment variable if set (`LATENTBKI_FIRMWARE_ELF` for the
+//! an386, `…_ELF_AN385`, `…_ELF_RISCV32`), else it is built (`cargo build --release` in the board
+//! directory, with `boards/measure.sh`'s flags so that either reuses the other's build). Without the board's
+//! QEMU (`qemu-system-arm`, `qemu-system-riscv32`) its test is skipped with a message — except in CI
 //! (`CI=true`), where it must run.
 
 use latentbki::frame::FrameDecoder;
@@ -27,37 +31,82 @@ const D: usize = 64;
 const P: usize = packed_len(D);
 type Robot = Mapper<D, SELF_TEST_CAPACITY, P, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
 
-fn board_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../boards/qemu-mps2-an386")
+/// A QEMU board of `boards/`: where it is, what it builds for, what runs it.
+struct Board {
+    /// Directory under `boards/` (the binary is `latentbki-<dir>`).
+    dir: &'static str,
+    target: &'static str,
+    qemu: &'static str,
+    /// Environment variable naming a prebuilt ELF.
+    elf_var: &'static str,
 }
 
-fn have_qemu() -> bool {
-    Command::new("qemu-system-arm")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success())
-}
+const AN386: Board = Board {
+    dir: "qemu-mps2-an386",
+    target: "thumbv7em-none-eabihf",
+    qemu: "qemu-system-arm",
+    elf_var: "LATENTBKI_FIRMWARE_ELF",
+};
+const AN385: Board = Board {
+    dir: "qemu-mps2-an385",
+    target: "thumbv6m-none-eabi",
+    qemu: "qemu-system-arm",
+    elf_var: "LATENTBKI_FIRMWARE_ELF_AN385",
+};
+const RISCV32_VIRT: Board = Board {
+    dir: "qemu-riscv32-virt",
+    target: "riscv32imac-unknown-none-elf",
+    qemu: "qemu-system-riscv32",
+    elf_var: "LATENTBKI_FIRMWARE_ELF_RISCV32",
+};
 
-fn firmware_elf() -> PathBuf {
-    if let Some(p) = std::env::var_os("LATENTBKI_FIRMWARE_ELF") {
-        return PathBuf::from(p);
+impl Board {
+    fn path(&self) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../boards")
+            .join(self.dir)
     }
-    let dir = board_dir();
-    let status = Command::new(env!("CARGO"))
-        .args(["build", "--release", "--quiet"])
-        .current_dir(&dir)
-        .env("CARGO_TARGET_DIR", dir.join("target"))
-        .status()
-        .expect("run cargo build for the firmware");
-    assert!(status.success(), "firmware build failed");
-    dir.join("target/thumbv7em-none-eabihf/release/latentbki-qemu-mps2-an386")
+
+    fn have_qemu(&self) -> bool {
+        Command::new(self.qemu)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    }
+
+    fn firmware_elf(&self) -> PathBuf {
+        if let Some(p) = std::env::var_os(self.elf_var) {
+            return PathBuf::from(p);
+        }
+        let dir = self.path();
+        // measure.sh's RUSTFLAGS (fixed source paths): the same build, whichever of the two runs first.
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("..")
+            .canonicalize()
+            .unwrap();
+        let status = Command::new(env!("CARGO"))
+            .args(["build", "--release", "--quiet"])
+            .current_dir(&dir)
+            .env("CARGO_TARGET_DIR", dir.join("target"))
+            .env(
+                "RUSTFLAGS",
+                format!("--remap-path-prefix={}=/latentbki", root.display()),
+            )
+            .status()
+            .expect("run cargo build for the firmware");
+        assert!(status.success(), "{} firmware build failed", self.dir);
+        dir.join(format!(
+            "target/{}/release/latentbki-{}",
+            self.target, self.dir
+        ))
+    }
 }
 
-/// Run the firmware in QEMU: (UART0 bytes, semihosting stdout).
-fn run_firmware(elf: &Path) -> (Vec<u8>, String) {
+/// Run the firmware in QEMU: (UART bytes, semihosting stdout).
+fn run_firmware(board: &Board, elf: &Path) -> (Vec<u8>, String) {
     let dir = tempfile::tempdir().unwrap();
     let uart = dir.path().join("uart.bin");
-    let out = Command::new(board_dir().join("run-qemu.sh"))
+    let out = Command::new(board.path().join("run-qemu.sh"))
         .arg(elf)
         .env("QEMU_SERIAL", &uart)
         .env_remove("QEMU_PLUGIN")
@@ -181,21 +230,37 @@ fn decode(bytes: &[u8]) -> (Global, u32, u32) {
 }
 
 #[test]
-fn firmware_in_qemu_streams_the_map_the_host_twin_computes() {
-    if !have_qemu() {
+fn cortex_m4f_firmware_in_qemu_streams_the_map_the_host_twin_computes() {
+    streams_the_map_the_host_twin_computes(&AN386);
+}
+
+#[test]
+fn thumbv6m_firmware_in_qemu_streams_the_map_the_host_twin_computes() {
+    streams_the_map_the_host_twin_computes(&AN385);
+}
+
+#[test]
+fn riscv32_firmware_in_qemu_streams_the_map_the_host_twin_computes() {
+    streams_the_map_the_host_twin_computes(&RISCV32_VIRT);
+}
+
+fn streams_the_map_the_host_twin_computes(board: &Board) {
+    if !board.have_qemu() {
         let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
         assert!(
             !ci,
-            "CI=true but qemu-system-arm is missing: .ci/run must install it"
+            "CI=true but {} is missing: .ci/run must install it",
+            board.qemu
         );
         eprintln!(
-            "SKIPPED firmware_in_qemu_streams_the_map_the_host_twin_computes: qemu-system-arm not found \
-             (apt-get install qemu-system-arm); set CI=true to make this a failure"
+            "SKIPPED {}: {} not found (apt-get install qemu-system-arm qemu-system-misc); set CI=true to make \
+             this a failure",
+            board.dir, board.qemu
         );
         return;
     }
-    let elf = firmware_elf();
-    let (uart, stdout) = run_firmware(&elf);
+    let elf = board.firmware_elf();
+    let (uart, stdout) = run_firmware(board, &elf);
     let twin = twin();
 
     // The firmware's own report agrees with the twin's, scenario by scenario.
@@ -223,10 +288,16 @@ fn firmware_in_qemu_streams_the_map_the_host_twin_computes() {
     }
 
     // Byte for byte the same stream.
-    assert_eq!(uart.len(), twin.bytes.len(), "UART stream length");
+    assert_eq!(
+        uart.len(),
+        twin.bytes.len(),
+        "{}: UART stream length",
+        board.dir
+    );
     if let Some(i) = uart.iter().zip(&twin.bytes).position(|(a, b)| a != b) {
         panic!(
-            "UART stream differs from the twin's at byte {i} of {}",
+            "{}: UART stream differs from the twin's at byte {i} of {}",
+            board.dir,
             uart.len()
         );
     }

@@ -1,7 +1,9 @@
 /* insncount: exact executed-instruction counts for marked regions (QEMU 7.2 TCG plugin, API v1).
  *
- * The firmware marks regions with Thumb hint instructions that execute as NOP:
- *   start `hint #10` = 0xBFA0, stop `hint #11` = 0xBFB0, report `hint #12` = 0xBFC0.
+ * The firmware marks regions with hint instructions that execute as NOP:
+ *   Arm (Thumb):  start `hint #10` = 0xBFA0, stop `hint #11` = 0xBFB0, report `hint #12` = 0xBFC0;
+ *   RISC-V:       start `addi x0, x0, 10` = 0x00A00013, stop `… 11` = 0x00B00013, report `… 12` = 0x00C00013.
+ * The set is chosen by QEMU's target name (an encoding of one is an ordinary instruction of the other).
  * Every executed instruction except the markers is counted (inline TCG add: exact even when a
  * translation block is left early). The instructions strictly between a start and the next stop are
  * added to the current sum; a report marker logs the sum (and the number of regions) and resets it.
@@ -19,9 +21,9 @@
 
 QEMU_PLUGIN_EXPORT int qemu_plugin_version = QEMU_PLUGIN_VERSION;
 
-#define MARK_START 0xBFA0u
-#define MARK_STOP 0xBFB0u
-#define MARK_REPORT 0xBFC0u
+/* The markers of the emulated architecture: their size in bytes and encodings. */
+static size_t mark_size;
+static uint32_t mark_start, mark_stop, mark_report;
 
 static uint64_t count;    /* instructions executed, markers excluded */
 static uint64_t start_at; /* count at the last start marker */
@@ -98,12 +100,15 @@ static void on_tb_trans(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
     size_t n = qemu_plugin_tb_n_insns(tb);
     for (size_t i = 0; i < n; i++) {
         struct qemu_plugin_insn *insn = qemu_plugin_tb_get_insn(tb, i);
-        if (qemu_plugin_insn_size(insn) == 2) {
+        if (qemu_plugin_insn_size(insn) == mark_size) {
             const uint8_t *d = qemu_plugin_insn_data(insn);
-            unsigned op = d[0] | (d[1] << 8);
-            qemu_plugin_vcpu_udata_cb_t cb = op == MARK_START ? on_start
-                                           : op == MARK_STOP  ? on_stop
-                                           : op == MARK_REPORT ? on_report : NULL;
+            uint32_t op = 0;
+            for (size_t b = 0; b < mark_size; b++) {
+                op |= (uint32_t)d[b] << (8 * b);
+            }
+            qemu_plugin_vcpu_udata_cb_t cb = op == mark_start ? on_start
+                                           : op == mark_stop  ? on_stop
+                                           : op == mark_report ? on_report : NULL;
             if (cb) {
                 qemu_plugin_register_vcpu_insn_exec_cb(insn, cb, QEMU_PLUGIN_CB_NO_REGS, NULL);
                 continue;
@@ -146,6 +151,14 @@ QEMU_PLUGIN_EXPORT int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_
             fprintf(stderr, "insncount: unknown argument %s (regions=on, profile=on)\n", argv[i]);
             return -1;
         }
+    }
+    if (strcmp(info->target_name, "arm") == 0) {
+        mark_size = 2, mark_start = 0xBFA0u, mark_stop = 0xBFB0u, mark_report = 0xBFC0u;
+    } else if (strncmp(info->target_name, "riscv", 5) == 0) {
+        mark_size = 4, mark_start = 0x00A00013u, mark_stop = 0x00B00013u, mark_report = 0x00C00013u;
+    } else {
+        fprintf(stderr, "insncount: no markers known for target %s (arm, riscv32)\n", info->target_name);
+        return -1;
     }
     if (info->system_emulation && info->system.smp_vcpus > 1) {
         qemu_plugin_outs("insncount: single vCPU only\n");

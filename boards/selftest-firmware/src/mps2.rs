@@ -1,25 +1,8 @@
-//! Board support for QEMU `mps2-an386` (Cortex-M4F): CMSDK UART0, semihosting exit codes, fault and panic
-//! handlers, stack high-water mark, and the instruction-counter markers.
+//! Board support shared by QEMU's Arm MPS2 machines (`mps2-an385`, a Cortex-M3 that runs the thumbv6m
+//! build, and `mps2-an386`, a Cortex-M4F): the CMSDK APB UART0 at the same address on both, the stack gauge
+//! of cortex-m-rt's `paint-stack`, and the Thumb hint markers of the instruction counter.
 
-/// Exit codes reported through semihosting (QEMU's process exit code).
-pub mod exit_code {
-    /// Success.
-    pub const SUCCESS: i32 = 0;
-    /// A scenario failed (bad configuration, stuck encoder).
-    pub const FAILED: i32 = 1;
-    /// The panic handler ran.
-    #[cfg_attr(feature = "panic-never", allow(dead_code))]
-    pub const PANIC: i32 = 101;
-    /// HardFault.
-    pub const HARD_FAULT: i32 = 102;
-    /// An exception or interrupt without a handler.
-    pub const UNHANDLED: i32 = 103;
-}
-
-/// Terminate QEMU with `code` (semihosting SYS_EXIT_EXTENDED).
-pub fn exit(code: i32) -> ! {
-    semihosting::process::exit(code)
-}
+use latentbki_selftest::Probe;
 
 /// Minimal TX-only driver for the CMSDK APB UART.
 pub struct Uart {
@@ -35,10 +18,11 @@ const STATE_TX_FULL: u32 = 1;
 const CTRL_TX_EN: u32 = 1;
 
 impl Uart {
-    /// UART0 of mps2-an386, transmitter enabled. Call once: it takes the peripheral.
+    /// UART0 of mps2-an385/an386, transmitter enabled. Call once: it takes the peripheral.
     pub fn uart0() -> Self {
-        // SAFETY: 0x4000_4000 is UART0's register block on mps2-an386 (AN386 memory map); these are aligned
-        // 32-bit MMIO writes, and only this driver touches UART0 (main creates it once).
+        // SAFETY: 0x4000_4000 is UART0's register block on mps2-an385 and mps2-an386 (AN385/AN386 memory
+        // maps); these are aligned 32-bit MMIO writes, and only this driver touches UART0 (main creates it
+        // once).
         unsafe {
             // BAUDDIV must be ≥ 16 or the UART counts as misconfigured.
             core::ptr::write_volatile((UART0_BASE + BAUDDIV) as *mut u32, 16);
@@ -77,15 +61,16 @@ impl embedded_io::Write for Uart {
     }
 }
 
-/// Stack high-water mark: cortex-m-rt's `paint-stack` fills the stack with a pattern at reset.
-pub mod stack {
-    extern "C" {
-        static _stack_start: u32; // initial SP (top of the stack)
-        static _stack_end: u32; // lowest address of the painted region (end of .bss/.uninit)
-    }
+/// The stack gauge: cortex-m-rt's `paint-stack` fills the stack with a pattern at reset.
+pub struct PaintedStack;
 
-    /// Bytes between the end of static RAM and the initial stack pointer.
-    pub fn size() -> usize {
+extern "C" {
+    static _stack_start: u32; // initial SP (top of the stack)
+    static _stack_end: u32; // lowest address of the painted region (end of .bss/.uninit)
+}
+
+impl crate::StackGauge for PaintedStack {
+    fn size(&self) -> usize {
         // Only the addresses of the linker symbols are taken, never their contents.
         let (top, bot) = (
             &raw const _stack_start as usize,
@@ -94,8 +79,7 @@ pub mod stack {
         top - bot
     }
 
-    /// Deepest stack use since reset (bytes): from the bottom, the first word that lost the paint.
-    pub fn high_water() -> usize {
+    fn high_water(&self) -> usize {
         let (top, mut p) = (
             &raw const _stack_start as usize,
             &raw const _stack_end as usize,
@@ -113,10 +97,8 @@ pub mod stack {
         top - p
     }
 
-    /// Paint the free stack again (below the current stack pointer), so that
-    /// [`high_water_since_repaint`] measures only what runs after this call.
     #[inline(never)]
-    pub fn repaint() {
+    fn repaint(&mut self) {
         let bot = &raw const _stack_end as usize;
         // 64 bytes of margin below the stack pointer for this function's own (leaf) use.
         let sp = cortex_m::register::msp::read() as usize - 64;
@@ -129,19 +111,14 @@ pub mod stack {
             p += 4;
         }
     }
-
-    /// Deepest stack use (bytes from the top) since the last [`repaint`].
-    pub fn high_water_since_repaint() -> usize {
-        high_water()
-    }
 }
 
 /// Markers for the `insncount` QEMU plugin: Thumb hints 0xBFA0 / 0xBFB0 / 0xBFC0, unallocated, so they
 /// execute as NOP on a Cortex-M and in QEMU. The plugin counts the instructions strictly between a start
 /// and the next stop, sums the regions, and logs the sum at each report marker.
-pub struct Markers;
+pub struct ThumbMarkers;
 
-impl latentbki_selftest::Probe for Markers {
+impl Probe for ThumbMarkers {
     #[inline(always)]
     fn start(&mut self) {
         // SAFETY: an architectural NOP hint; no memory, stack or flags touched.
@@ -154,40 +131,10 @@ impl latentbki_selftest::Probe for Markers {
     }
 }
 
-impl Markers {
-    /// Log the regions counted since the last report (one line per frame).
+impl crate::Markers for ThumbMarkers {
     #[inline(always)]
-    pub fn report(&mut self) {
+    fn report() {
         // SAFETY: as above.
         unsafe { core::arch::asm!("hint #12", options(nostack, preserves_flags)) }
     }
-}
-
-#[cortex_m_rt::exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
-    exit(exit_code::HARD_FAULT)
-}
-
-#[cortex_m_rt::exception]
-unsafe fn DefaultHandler(_irqn: i16) {
-    exit(exit_code::UNHANDLED)
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    semihosting::eprintln!("PANIC: {info}");
-    exit(exit_code::PANIC)
-}
-
-/// With `panic-never` the panic handler refers to a symbol that exists nowhere: if the optimised firmware
-/// still contains any path to a panic, the link fails and names the code that references it.
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn __the_integrate_and_stream_path_can_panic() -> !;
-    }
-    // SAFETY: never executed — the symbol is undefined on purpose, so a reachable panic is a link error.
-    unsafe { __the_integrate_and_stream_path_can_panic() }
 }

@@ -1,0 +1,164 @@
+#!/usr/bin/env bash
+# Firmware measurements of the targets without an FPU, each on its QEMU board, the same self-test program as
+# the an386 (boards/selftest-firmware):
+#   thumbv6m      (Cortex-M0/M0+ instruction set)  boards/qemu-mps2-an385  (QEMU's Cortex-M3 runs v6-M code)
+#   riscv32imac                                    boards/qemu-riscv32-virt
+# boards/measure.sh calls this for each of its modes, after the an386's part:
+#   --size          build; flash ≤ 64 KiB on every target (a budget, not a golden file: the an386's golden
+#                   size catches drift, this the limit)
+#   --panic-never   the link-time no-panic proof: the `panic-never` build links, runs, and streams the same
+#                   UART bytes as the reporting build (the an386's, when measure.sh has just run it: every
+#                   target's equals the host twin's)
+#   --table         rows of measure.sh's table: flash, whole-run stack, instructions/point at f = 3 on the
+#                   depth frame (per feature type); PROFILE=1 adds each target's hot spots after the table
+#                   (`--profile` prints only them)
+set -euo pipefail
+BOARDS=$(cd "$(dirname "$0")" && pwd)
+ROOT=$(cd "$BOARDS/.." && pwd)
+# As measure.sh: fixed source paths (a path dependency's panic locations embed them).
+export RUSTFLAGS="--remap-path-prefix=$ROOT=/latentbki"
+HOST=$(rustc -vV | sed -n 's/^host: //p')
+LLVM_BIN="$(rustc --print sysroot)/lib/rustlib/$HOST/bin"
+[ -x "$LLVM_BIN/llvm-size" ] || rustup component add llvm-tools
+# board directory, target triple, name in the table
+TARGETS=("qemu-mps2-an385 thumbv6m-none-eabi thumbv6m"
+         "qemu-riscv32-virt riscv32imac-unknown-none-elf riscv32imac")
+FLASH_BUDGET=65536
+
+elf() { echo "$BOARDS/$1/target/$2/release/latentbki-$1"; }
+
+build() {
+  (cd "$BOARDS/$1" && CARGO_TARGET_DIR="$PWD/target" cargo build --release --quiet)
+}
+
+# flash = what the image stores (code, read-only data, unwind tables, .data's initial values);
+# ram = the statics (.data, .bss, .uninit).
+size_line() {
+  "$LLVM_BIN/llvm-size" -A -d "$1" | awk '
+    $1 ~ /^\.(vector_table|text|init\.rust|rodata|eh_frame|data)$/ { flash += $2 }
+    $1 ~ /^\.(data|bss|uninit)$/ { ram += $2 }
+    END { printf "flash=%d ram=%d\n", flash, ram }'
+}
+
+check_size() {
+  local dir=$1 triple=$2 name=$3 line flash
+  build "$dir"
+  line=$(size_line "$(elf "$dir" "$triple")")
+  flash=$(sed 's/flash=\([0-9]*\).*/\1/' <<< "$line")
+  if [ "$flash" -gt "$FLASH_BUDGET" ]; then
+    echo "$name firmware ($dir): $line: flash over the 64 KiB budget" >&2
+    return 1
+  fi
+  echo "size ok ($name, $dir): $line"
+}
+
+panic_never() {
+  local dir=$1 triple=$2 name=$3 out pn_elf
+  build "$dir"
+  out="$BOARDS/$dir/target/measure"
+  mkdir -p "$out"
+  # Its own target dir, as on the an386: built into the reporting build's, cargo would uplift it over that ELF.
+  pn_elf=$(cd "$BOARDS/$dir" && CARGO_TARGET_DIR="$PWD/target/panic-never" \
+    cargo build --release --quiet --features panic-never --message-format=json-render-diagnostics |
+    python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])') || {
+    echo "$name: panic-never build does not link: a panic is reachable (python3 boards/panic-sites.py lists where)" >&2
+    return 1; }
+  QEMU_SERIAL="$out/uart-panic-never.bin" "$BOARDS/$dir/run-qemu.sh" "$pn_elf" >/dev/null || {
+    echo "$name: panic-never firmware failed: exit code $?" >&2; return 1; }
+  # Every target streams the host twin's bytes (host-sim/tests/firmware_qemu.rs), so the an386's reporting
+  # run, just made by measure.sh --panic-never, stands for this target's (one QEMU run less per target).
+  local reference="$BOARDS/qemu-mps2-an386/target/measure/uart-reporting.bin"
+  if [ ! -f "$reference" ] || [ "$reference" -ot "$(elf qemu-mps2-an386 thumbv7em-none-eabihf)" ]; then
+    reference="$out/uart-reporting.bin"
+    QEMU_SERIAL="$reference" "$BOARDS/$dir/run-qemu.sh" "$(elf "$dir" "$triple")" > "$out/reporting.stdout" || {
+      echo "$name: firmware failed: exit code $?" >&2; return 1; }
+    grep -qx done "$out/reporting.stdout" || {
+      echo "$name: the reporting build printed no \`done\` line" >&2; return 1; }
+  fi
+  cmp "$out/uart-panic-never.bin" "$reference" || {
+    echo "$name: the panic-never build streams different bytes from the reporting build ($reference)" >&2; return 1; }
+  echo "panic-never ok ($name, $dir): links, runs, streams the same $(wc -c < "$out/uart-panic-never.bin") bytes"
+}
+
+# Run under the instruction-counting plugin (profile=on with PROFILE=1); leaves stdout.txt, insn.log and
+# firmware.size in target/measure.
+run_counted() {
+  local dir=$1 triple=$2 out args=""
+  build "$dir"
+  out="$BOARDS/$dir/target/measure"
+  mkdir -p "$out"
+  size_line "$(elf "$dir" "$triple")" > "$out/firmware.size"
+  OUT="$out/insncount.so" "$BOARDS/qemu-mps2-an386/plugin/build.sh"
+  [ "${PROFILE:-0}" = 1 ] && args="profile=on"
+  # Soft float under the counting plugin is slow: more than run-qemu.sh's default 300 s on a loaded machine.
+  QEMU_TIMEOUT="${QEMU_TIMEOUT:-1200}" \
+  QEMU_PLUGIN="$out/insncount.so" QEMU_PLUGIN_ARGS="$args" QEMU_PLUGIN_LOG="$out/insn.log" \
+    QEMU_SERIAL="$out/uart.bin" "$BOARDS/$dir/run-qemu.sh" "$(elf "$dir" "$triple")" > "$out/stdout.txt" || {
+    echo "$dir firmware failed: exit code $? (101 panic, 102 fault, 124 timeout)" >&2; return 1; }
+  grep -q '^done$' "$out/stdout.txt" || { echo "$dir firmware did not finish" >&2; return 1; }
+}
+
+# The table rows of one target (after run_counted).
+rows() {
+  local dir=$1 name=$3 out="$BOARDS/$1/target/measure"
+  python3 - "$out" "$name" <<'PY'
+import re, sys
+out, name = sys.argv[1], sys.argv[2]
+kv = lambda line: dict(re.findall(r'(\w+)=(\w+)', line))
+size = kv(open(f"{out}/firmware.size").read())
+lines = open(f"{out}/stdout.txt").read().splitlines()
+marks = [l for l in open(f"{out}/insn.log") if l.startswith("mark ")]
+frames = [l for l in lines if l.startswith("frame ")]
+assert len(frames) == len(marks), f"{len(frames)} frame lines, {len(marks)} plugin marks"
+scen = {int(kv(l)["s"]): kv(l) for l in lines if l.startswith("scenario ")}
+stack = [kv(l) for l in lines if l.startswith("stack ")]
+mem = kv(next(l for l in lines if l.startswith("memory ")))
+KB = lambda b: f"{int(b) / 1024:.1f} KiB"
+print(f"| flash (text + rodata + data), {name} | {KB(size['flash'])} ({size['flash']} B) | ≤ 64 KB |")
+whole = max([int(s['setup_high_water']) for s in stack] + [int(s['loop_high_water']) for s in stack]
+            + [int(mem['tail_stack_high_water'])])
+print(f"| stack, whole run (set-up included), {name} | {whole} B | ≤ 8 KB |")
+runs = {}
+for f, m in zip(frames, marks):
+    d = kv(f)
+    runs.setdefault(int(d["s"]), []).append((int(d["points"]), int(m.split()[2])))
+# The depth-frame scenarios at f = 3, one row per feature type: by the scenario's name where the firmware
+# reports one (latentbki-selftest's SELF_TEST), else every f = 3 scenario of 4,096-point frames (f32).
+FEATURES = {"depth_f3": "f32", "depth_f3_i8": "i8"}
+for s, fr in sorted(runs.items()):
+    d = scen[s]
+    if "name" in d:
+        if d["name"] not in FEATURES:
+            continue
+        feats = FEATURES[d["name"]]
+    elif d["f"] == "3" and fr[0][0] == 4096:
+        feats = "f32"
+    else:
+        continue
+    per = sorted(i / p for p, i in fr if p > 0)
+    mean = sum(i for _, i in fr) / sum(p for p, _ in fr)
+    goal = "≤ 2,000" if feats == "i8" else "none (soft float: the i8 path is for this target)"
+    print(f"| instructions/point, f = 3, {name}, {feats} features ({len(fr)} depth frames, {sum(p for p, _ in fr):,} points, "
+          f"scenario {s}) | {mean:.0f} mean, median {per[len(per) // 2]:.0f}, {per[0]:.0f}–{per[-1]:.0f} per frame | {goal} |")
+PY
+}
+
+profile() {
+  local dir=$1 triple=$2 name=$3 out="$BOARDS/$1/target/measure"
+  echo
+  echo "profile of the marked regions, $name:"
+  "$LLVM_BIN/llvm-objdump" -d --no-show-raw-insn "$(elf "$dir" "$triple")" > "$out/firmware.dis"
+  python3 "$BOARDS/profile.py" "$out/firmware.dis" "$out/insn.log"
+}
+
+mode=${1:---table}
+for t in "${TARGETS[@]}"; do
+  read -r dir triple name <<< "$t"
+  case $mode in
+    --size) check_size "$dir" "$triple" "$name" ;;
+    --panic-never) panic_never "$dir" "$triple" "$name" ;;
+    --table) run_counted "$dir" "$triple"; rows "$dir" "$triple" "$name" ;;
+    --profile) profile "$dir" "$triple" "$name" ;;
+    *) echo "usage: $0 --size | --panic-never | --table | --profile" >&2; exit 2 ;;
+  esac
+done
