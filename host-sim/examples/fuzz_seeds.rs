@@ -6,7 +6,9 @@
 
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{
+    frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
+};
 use std::path::Path;
 
 struct Buf(Vec<u8>);

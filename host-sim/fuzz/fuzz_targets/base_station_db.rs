@@ -8,7 +8,7 @@ use latentbki_station::store::SqliteStore;
 use latentbki_station::BaseStation;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{sink::Evicted, sink::EvictionSink, frame::FrameEncoder, MapConfig, obs::ObsStats, key::VoxelKey};
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 

@@ -13,7 +13,7 @@ use crate::npy_io::NpzReader;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use latentbki::wire::feature_space_id;
-use latentbki::{Codebook, Pca};
+use latentbki::{decode::Codebook, decode::Pca};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -8,7 +8,7 @@
 
 use super::global_map::GlobalMap;
 pub use crate::png_io::RgbImage;
-use latentbki::{Codebook, VoxelKey, VoxelStats};
+use latentbki::{decode::Codebook, key::VoxelKey, stats::VoxelStats};
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;

@@ -15,7 +15,10 @@
 
 use crate::ObsMap;
 use latentbki::wire::{SessionConfig, Summary};
-use latentbki::{Codebook, MapConfig, ObsLookup, ObsStats, Prior, VoxelKey, VoxelStats};
+use latentbki::{
+    decode::Codebook, key::VoxelKey, obs::ObsLookup, obs::ObsStats, stats::VoxelStats, MapConfig,
+    Prior,
+};
 use std::collections::HashMap;
 
 /// Largest vocabulary the base station decodes against.
@@ -455,7 +458,7 @@ impl<const D: usize> ObsLookup<D> for GlobalMap<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use latentbki::SummaryCodec;
+    use latentbki::wire::SummaryCodec;
 
     const D: usize = 4;
 
@@ -612,11 +615,12 @@ mod tests {
                 self.0.observations(&key)
             }
         }
-        let lut: latentbki::KernelLut = latentbki::KernelLut::new(forward.map_config()).unwrap();
+        let lut: latentbki::kernel::KernelLut =
+            latentbki::kernel::KernelLut::new(forward.map_config()).unwrap();
         let all = forward.posteriors();
         assert_eq!(all.len(), 27, "one voxel reaches its 3×3×3 neighbours");
         for (key, p) in &all {
-            let want = latentbki::gather(&lut, &Literal(&forward), *key)
+            let want = latentbki::obs::gather(&lut, &Literal(&forward), *key)
                 .unwrap()
                 .posterior(&forward.prior());
             assert_eq!(forward.posterior(key).as_ref(), Some(&want), "{key:?}");
