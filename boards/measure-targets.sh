@@ -10,8 +10,11 @@
 #                   UART bytes as the reporting build (the an386's, when measure.sh has just run it: every
 #                   target's equals the host twin's)
 #   --table         rows of measure.sh's table: flash, whole-run stack, instructions/point at f = 3 on the
-#                   depth frame (per feature type); PROFILE=1 adds each target's hot spots after the table
-#                   (`--profile` prints only them)
+#                   depth frame (per feature type)
+#   --MODE TARGET   only that target (thumbv6m or riscv32imac)
+#   --profile       after --table: each target's hot spots in one scenario's counted regions (PROFILE_SCENARIO,
+#                   default depth_f3_i8), from a second run with the plugin's per-PC profile (measure.sh's
+#                   PROFILE=1 calls it)
 set -euo pipefail
 BOARDS=$(cd "$(dirname "$0")" && pwd)
 ROOT=$(cd "$BOARDS/.." && pwd)
@@ -80,19 +83,17 @@ panic_never() {
   echo "panic-never ok ($name, $dir): links, runs, streams the same $(wc -c < "$out/uart-panic-never.bin") bytes"
 }
 
-# Run under the instruction-counting plugin (profile=on with PROFILE=1); leaves stdout.txt, insn.log and
-# firmware.size in target/measure.
+# Run under the instruction-counting plugin; leaves stdout.txt, insn.log and firmware.size in target/measure.
 run_counted() {
-  local dir=$1 triple=$2 out args=""
+  local dir=$1 triple=$2 out
   build "$dir"
   out="$BOARDS/$dir/target/measure"
   mkdir -p "$out"
   size_line "$(elf "$dir" "$triple")" > "$out/firmware.size"
   OUT="$out/insncount.so" "$BOARDS/qemu-mps2-an386/plugin/build.sh"
-  [ "${PROFILE:-0}" = 1 ] && args="profile=on"
   # Soft float under the counting plugin is slow: more than run-qemu.sh's default 300 s on a loaded machine.
   QEMU_TIMEOUT="${QEMU_TIMEOUT:-1200}" \
-  QEMU_PLUGIN="$out/insncount.so" QEMU_PLUGIN_ARGS="$args" QEMU_PLUGIN_LOG="$out/insn.log" \
+  QEMU_PLUGIN="$out/insncount.so" QEMU_PLUGIN_LOG="$out/insn.log" \
     QEMU_SERIAL="$out/uart.bin" "$BOARDS/$dir/run-qemu.sh" "$(elf "$dir" "$triple")" > "$out/stdout.txt" || {
     echo "$dir firmware failed: exit code $? (101 panic, 102 fault, 124 timeout)" >&2; return 1; }
   grep -q '^done$' "$out/stdout.txt" || { echo "$dir firmware did not finish" >&2; return 1; }
@@ -144,16 +145,31 @@ PY
 }
 
 profile() {
-  local dir=$1 triple=$2 name=$3 out="$BOARDS/$1/target/measure"
+  local dir=$1 triple=$2 name=$3 out="$BOARDS/$1/target/measure" scenario=${PROFILE_SCENARIO:-depth_f3_i8} marks
+  # The report markers of the scenario's frames (one per frame line, in order) in the last --table run.
+  marks=$(python3 - "$out/stdout.txt" "$scenario" <<'PY'
+import re, sys
+lines = open(sys.argv[1]).read().splitlines()
+s = next(m.group(1) for l in lines for m in [re.match(rf"scenario s=(\d+) name={sys.argv[2]} ", l)] if m)
+idx = [i for i, l in enumerate(l for l in lines if l.startswith("frame ")) if f" s={s} " in l]
+print(f"{idx[0]}-{idx[-1] + 1}")
+PY
+) || { echo "$name: no scenario $scenario in the last run (run --table first)" >&2; return 1; }
+  QEMU_TIMEOUT="${QEMU_TIMEOUT:-3600}" QEMU_PLUGIN="$out/insncount.so" QEMU_PLUGIN_ARGS="profile=on,profile_marks=$marks" \
+    QEMU_PLUGIN_LOG="$out/insn-profile.log" QEMU_SERIAL="$out/uart-profile.bin" \
+    "$BOARDS/$dir/run-qemu.sh" "$(elf "$dir" "$triple")" > /dev/null || {
+    echo "$dir firmware failed under the profiler: exit code $?" >&2; return 1; }
   echo
-  echo "profile of the marked regions, $name:"
+  echo "$name, scenario $scenario (report marks $marks):"
   "$LLVM_BIN/llvm-objdump" -d --no-show-raw-insn "$(elf "$dir" "$triple")" > "$out/firmware.dis"
-  python3 "$BOARDS/profile.py" "$out/firmware.dis" "$out/insn.log"
+  python3 "$BOARDS/profile.py" "$out/firmware.dis" "$out/insn-profile.log"
 }
 
 mode=${1:---table}
+only=${2:-}   # optional: one target by its name (thumbv6m, riscv32imac)
 for t in "${TARGETS[@]}"; do
   read -r dir triple name <<< "$t"
+  [ -z "$only" ] || [ "$only" = "$name" ] || continue
   case $mode in
     --size) check_size "$dir" "$triple" "$name" ;;
     --panic-never) panic_never "$dir" "$triple" "$name" ;;

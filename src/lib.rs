@@ -59,12 +59,14 @@
 //! ## Modules
 //!
 //! They follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
-//! (voxel keys, poses) → [`batch`] (validating a point) → [`obs`] (what a voxel observed, and gathering
-//! posteriors through the kernel) → [`stats`] (the posterior update) → [`inference`]
+//! (voxel keys, poses; [`fixed_pose`]: integer sensor points without float) → [`batch`] (validating a
+//! point) → [`obs`] (what a voxel observed — in f32, or as exact integer sums of int8 codes — and gathering
+//! posteriors through the kernel; [`forget`]: letting old observations fade) → [`stats`] (the posterior
+//! update) → [`inference`]
 //! and [`sampling`] (uncertainty; [`info_gain`]: where to look next) →
 //! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
 //! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder) →
-//! [`mapper`] (all of it as one value). [`f32math`] holds the single-precision elementary functions the
+//! [`mapper`] (all of it as one value; the firmware author's guide is `docs/firmware.md`). [`f32math`] holds the single-precision elementary functions the
 //! device path uses.
 #![no_std]
 #![deny(missing_docs)]
@@ -79,6 +81,7 @@ pub mod config;
 pub mod decode;
 pub mod f32math;
 pub mod fixed_pose;
+pub mod forget;
 pub mod frame;
 pub mod inference;
 pub mod info_gain;

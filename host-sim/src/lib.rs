@@ -4,9 +4,11 @@
 
 pub mod base_station;
 pub mod bench;
+pub mod changing;
 pub mod cli_args;
 pub mod demo_link;
 pub mod eval;
+pub mod explore;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;

@@ -32,6 +32,9 @@ enum Command {
     Demo(host_sim::eval::cli::DemoArgs),
     /// The paper's experiments on the tile and the procedural house: table, sweep, curves, pictures.
     Eval(host_sim::eval::cli::EvalArgs),
+    /// Exploration: the robot picks its next view by information gain, against random and nearest-frontier
+    /// choice; accuracy vs distance driven (out/explore.png).
+    Explore(host_sim::explore::ExploreArgs),
     /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
     Query(host_sim::eval::cli::QueryArgs),
     /// Receive robots' streams (serial port, file, pty or stdin) into the global map database (SQLite,
@@ -277,6 +280,7 @@ fn run() -> Result<()> {
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
         Command::Bench(args) => host_sim::bench::run(&args),
+        Command::Explore(args) => host_sim::explore::explore(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
         #[cfg(feature = "encoder")]
         Command::EmbedVocab(args) => {

@@ -124,7 +124,8 @@ fn queries_and_exports_show_the_scene() {
         3,
     )
     .unwrap();
-    assert_eq!(files.len(), 3);
+    assert_eq!(files.len(), 4);
+    assert!(files[3].ends_with("map-gain.png"));
     for f in &files {
         let back = host_sim::png_io::RgbImage::read_png(f).unwrap();
         assert_eq!(back.width(), img.width() * 3);

@@ -10,7 +10,9 @@
  * Output (QEMU: `-d plugin -D <file>`):
  *   mark <n> <instructions> <regions>        at each report marker
  *   region <n> <instructions>                 each region, with the argument regions=on
- *   pc 0x<addr> <instructions>               with profile=on: per-PC counts inside regions, at exit
+ *   pc 0x<addr> <instructions>               with profile=on: per-PC counts inside regions, at exit;
+ *                                            with profile_marks=A-B too: only the regions logged by report
+ *                                            markers A to B − 1 (e.g. one scenario's frames)
  *   total <instructions>                      at exit (everything executed)
  */
 #include <inttypes.h>
@@ -31,6 +33,7 @@ static uint64_t sum;      /* region instructions since the last report */
 static unsigned regions;  /* regions since the last report */
 static unsigned region_no, mark_no;
 static int active, log_regions, profile;
+static unsigned profile_from, profile_to = ~0u; /* report markers whose regions are profiled: [from, to) */
 
 /* Per-PC counters for profile=on: open addressing on the PC. */
 #define PROF_SLOTS (1u << 17)
@@ -89,7 +92,7 @@ static void on_insn_profiled(unsigned int vcpu, void *ud)
 {
     (void)vcpu;
     count++;
-    if (active) {
+    if (active && mark_no >= profile_from && mark_no < profile_to) {
         ((struct prof *)ud)->n++;
     }
 }
@@ -147,8 +150,10 @@ QEMU_PLUGIN_EXPORT int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_
             log_regions = 1;
         } else if (strcmp(argv[i], "profile=on") == 0) {
             profile = 1;
+        } else if (sscanf(argv[i], "profile_marks=%u-%u", &profile_from, &profile_to) == 2) {
+            continue;
         } else {
-            fprintf(stderr, "insncount: unknown argument %s (regions=on, profile=on)\n", argv[i]);
+            fprintf(stderr, "insncount: unknown argument %s (regions=on, profile=on, profile_marks=A-B)\n", argv[i]);
             return -1;
         }
     }

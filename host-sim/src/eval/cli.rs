@@ -21,6 +21,8 @@ pub enum SceneArg {
     Indoor,
     /// Both.
     Both,
+    /// The house whose furniture changes class between two loops: forgetting on and off.
+    Changing,
 }
 
 /// `demo` options.
@@ -64,6 +66,9 @@ pub struct EvalArgs {
     /// Seed of the house layout.
     #[arg(long, default_value_t = 1)]
     pub layout_seed: u64,
+    /// `--scene changing`: the forgetting half-life in frames [default: four loops of the house].
+    #[arg(long)]
+    pub half_life: Option<u32>,
     /// Indoors, use the 8 × 8 multizone ToF sensor instead of the depth camera.
     #[arg(long)]
     pub tof: bool,
@@ -194,6 +199,12 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     ensure!(args.points >= 1, "--points must be at least 1");
     ensure!(args.pixels >= 1, "--pixels must be at least 1");
     let scene = args.scene();
+    if scene == SceneArg::Changing {
+        let outcome =
+            crate::changing::run(args.layout_seed, args.seed, args.pixels, args.half_life)?;
+        crate::changing::report(&outcome);
+        return Ok(());
+    }
     let tile_config = args.map.config()?;
     if scene == SceneArg::Indoor {
         ensure!(
@@ -251,6 +262,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         SceneArg::Tile => vec![Scene::Tile],
         SceneArg::Indoor => vec![Scene::Indoor],
         SceneArg::Both => vec![Scene::Tile, Scene::Indoor],
+        SceneArg::Changing => Vec::new(), // run above
     };
     let mut reports = Vec::new();
     for s in scenes {
@@ -269,7 +281,9 @@ pub fn query(args: &QueryArgs) -> Result<()> {
     let scene = match args.scene {
         SceneArg::Tile => Scene::Tile,
         SceneArg::Indoor => Scene::Indoor,
-        SceneArg::Both => bail!("query maps one scene: give --scene tile or --scene indoor"),
+        SceneArg::Both | SceneArg::Changing => {
+            bail!("query maps one scene: give --scene tile or --scene indoor")
+        }
     };
     // The output folder first: finding it unusable after the mapping would waste the run.
     let dir = args.out.join(scene.name());
@@ -407,6 +421,7 @@ mod tests {
             points: 100,
             pixels: 100,
             layout_seed: 1,
+            half_life: None,
             tof: false,
             no_sweep: true,
             queries: Vec::new(),

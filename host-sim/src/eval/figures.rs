@@ -14,9 +14,9 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Once;
 
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // The font is a valid TTF shipped by the crate; failure would be a packaging bug.
@@ -25,15 +25,15 @@ fn register_font() {
     });
 }
 
-type Error = Box<dyn std::error::Error + Send + Sync>;
-type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+pub(crate) type Error = Box<dyn std::error::Error + Send + Sync>;
+pub(crate) type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
-fn err<E: std::fmt::Display>(e: E) -> Error {
+pub(crate) fn err<E: std::fmt::Display>(e: E) -> Error {
     e.to_string().into()
 }
 
 /// Draw a `size` picture with `draw` into memory, then write it to `path` as a PNG.
-fn figure(
+pub(crate) fn figure(
     path: &Path,
     size: (u32, u32),
     draw: impl FnOnce(&Area) -> Result<(), Error>,
@@ -372,7 +372,7 @@ pub fn uncertainty_map(
     )
 }
 
-fn series_colour(i: usize) -> RGBColor {
+pub(crate) fn series_colour(i: usize) -> RGBColor {
     let (r, g, b) = PALETTE[i % PALETTE.len()];
     RGBColor(r, g, b)
 }

@@ -20,6 +20,8 @@ pub mod global_map;
 pub mod obs_map;
 pub mod png_io;
 pub mod store;
+#[cfg(feature = "view")]
+pub mod view;
 
 pub use global_map::{
     Applied, ContributionId, GlobalMap, GlobalVoxel, RecordError, Uncertainty, VOCAB_CAP,
@@ -161,6 +163,8 @@ pub struct BaseStation<const D: usize> {
     dirty_voxels: HashSet<VoxelKey>,
     dirty_sessions: HashSet<(u16, u32)>,
     config_dirty: bool,
+    /// Changed since the last [`BaseStation::take_watched`] (a live view's hook), if watched.
+    watched: Option<HashSet<VoxelKey>>,
 }
 
 impl<const D: usize> BaseStation<D> {
@@ -197,6 +201,7 @@ impl<const D: usize> BaseStation<D> {
             dirty_voxels,
             dirty_sessions: HashSet::new(),
             config_dirty,
+            watched: None,
         }
     }
 
@@ -291,6 +296,17 @@ impl<const D: usize> BaseStation<D> {
             self.committed();
         }
         Ok(())
+    }
+
+    /// Track the voxels every frame changes for [`BaseStation::take_watched`] (a live view).
+    pub fn watch(&mut self) {
+        self.watched.get_or_insert_with(HashSet::new);
+    }
+    /// The voxels changed since the last call (empty unless [`BaseStation::watch`]ed).
+    pub fn take_watched(&mut self) -> Vec<VoxelKey> {
+        self.watched
+            .as_mut()
+            .map_or_else(Vec::new, |w| w.drain().collect())
     }
 
     /// Keep a copy of every accepted frame body (tests audit them against what was sent).
@@ -431,6 +447,9 @@ impl<const D: usize> BaseStation<D> {
                 }
             }
             self.dirty_voxels.insert(s.key);
+            if let Some(w) = &mut self.watched {
+                w.insert(s.key);
+            }
             self.stats.clamped_mean_scale += u32::from(s.at_ceiling.mean_scale);
             self.stats.clamped_psi += u32::from(s.at_ceiling.psi);
         }

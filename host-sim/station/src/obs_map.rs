@@ -13,8 +13,9 @@
 use latentbki::batch::locate;
 use latentbki::nalgebra::Isometry3;
 use latentbki::{
-    kernel::KernelLut, key::to_map_frame, key::VoxelKey, obs::GatherError, obs::ObsLookup,
-    obs::ObsStats, stats::VoxelStats, ConfigError, MapConfig, Prior, RejectionCounts,
+    forget::Forgetting, forget::Stamped, kernel::KernelLut, key::to_map_frame, key::VoxelKey,
+    obs::GatherError, obs::ObsLookup, obs::ObsStats, stats::VoxelStats, ConfigError, MapConfig,
+    Prior, RejectionCounts,
 };
 use rustc_hash::FxHashMap;
 
@@ -90,6 +91,11 @@ pub struct ObsMap<const D: usize> {
     stats: Vec<ObsStats<D>>,
     rejections: RejectionCounts,
     points: u64,
+    /// Forgetting ([`latentbki::forget`]): off by default. When on, `times[slot]` is the tick of the slot's
+    /// last change and every read decays it to `now`.
+    forgetting: Option<Forgetting>,
+    times: Vec<u32>,
+    now: u32,
 }
 
 impl<const D: usize> ObsMap<D> {
@@ -112,6 +118,9 @@ impl<const D: usize> ObsMap<D> {
             stats: Vec::new(),
             rejections: RejectionCounts::default(),
             points: 0,
+            forgetting: None,
+            times: Vec::new(),
+            now: 0,
         })
     }
 
@@ -155,6 +164,11 @@ impl<const D: usize> ObsMap<D> {
                 slots[taken] = (self.slot_or_insert(b, local, key), i as u32);
                 taken += 1;
             }
+            if self.forgetting.is_some() {
+                for &(slot, _) in &slots[..taken] {
+                    self.advance(slot as usize);
+                }
+            }
             for &(slot, i) in &slots[..taken] {
                 self.stats[slot as usize].add_point(&features[i as usize]);
             }
@@ -174,6 +188,7 @@ impl<const D: usize> ObsMap<D> {
         if *slot_ref == 0 {
             self.keys.push(key);
             self.stats.push(ObsStats::EMPTY);
+            self.times.push(self.now);
             *slot_ref = self.stats.len() as u32;
         }
         *slot_ref - 1
@@ -196,7 +211,45 @@ impl<const D: usize> ObsMap<D> {
         let (bk, local) = block_of(key);
         let b = self.block_index_or_insert(bk);
         let slot = self.slot_or_insert(b, local, key);
+        self.advance(slot as usize);
         self.stats[slot as usize].merge(obs);
+    }
+
+    /// Forget with `forgetting` from now on (`None`: never, the default). Observations already held count
+    /// as made at their slot's last change.
+    pub fn set_forgetting(&mut self, forgetting: Option<Forgetting>) {
+        self.forgetting = forgetting;
+    }
+
+    /// Set the mission clock ([`latentbki::forget`]'s clock rule): points integrated from now on are
+    /// stamped `now`, and reads decay to it. Without forgetting the clock changes nothing.
+    pub fn set_time(&mut self, now: u32) {
+        self.now = now;
+    }
+
+    /// Bring a slot's statistics to the clock (lazily, on change).
+    fn advance(&mut self, slot: usize) {
+        if let Some(f) = &self.forgetting {
+            let mut v = Stamped {
+                obs: self.stats[slot],
+                time: self.times[slot],
+            };
+            v.advance(f, self.now);
+            (self.stats[slot], self.times[slot]) = (v.obs, v.time);
+        }
+    }
+
+    /// A slot's statistics as read now: decayed to the clock when forgetting.
+    #[inline]
+    fn read(&self, slot: usize) -> ObsStats<D> {
+        match &self.forgetting {
+            None => self.stats[slot],
+            Some(f) => Stamped {
+                obs: self.stats[slot],
+                time: self.times[slot],
+            }
+            .at(f, self.now),
+        }
     }
 
     /// Replace a voxel's observations (e.g. the base station's merged statistics after a live update).
@@ -208,6 +261,7 @@ impl<const D: usize> ObsMap<D> {
         let b = self.block_index_or_insert(bk);
         let slot = self.slot_or_insert(b, local, key);
         self.stats[slot as usize] = *obs;
+        self.times[slot as usize] = self.now; // held as of now
     }
 
     /// The posterior of one voxel (the prior if nothing is in reach).
@@ -336,12 +390,12 @@ impl<const D: usize> ObsMap<D> {
                     let mut acc = if own == 0 {
                         ObsStats::EMPTY
                     } else {
-                        self.stats[own as usize - 1]
+                        self.read(own as usize - 1)
                     };
                     for &(o, k) in &ring {
                         let s = slot_at(x + o[0], y + o[1], z + o[2]);
                         if s != 0 {
-                            acc.merge_scaled(k, &self.stats[s as usize - 1]);
+                            acc.merge_scaled(k, &self.read(s as usize - 1));
                         }
                     }
                     f(voxel_of(*bk, local), &acc.posterior(&self.prior));
@@ -397,7 +451,25 @@ impl<const D: usize> ObsLookup<D> for ObsMap<D> {
         let b = *self.index.get(&bk)?;
         match self.blocks[b as usize].1[local] {
             0 => None,
-            s => self.stats.get(s as usize - 1).copied(),
+            s => Some(self.read(s as usize - 1)),
+        }
+    }
+
+    fn observed_count(&self, key: VoxelKey) -> f32 {
+        let (bk, local) = block_of(key);
+        let Some(&b) = self.index.get(&bk) else {
+            return 0.0;
+        };
+        match self.blocks[b as usize].1[local] {
+            0 => 0.0,
+            s => {
+                let slot = s as usize - 1;
+                let n = self.stats[slot].count;
+                match &self.forgetting {
+                    None => n,
+                    Some(f) => n * f.factor(self.now.saturating_sub(self.times[slot])),
+                }
+            }
         }
     }
 }

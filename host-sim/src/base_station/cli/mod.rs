@@ -8,6 +8,7 @@
 
 use super::export::{write_ply, write_pngs, MAX_SIDE};
 use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
+use super::view::{ViewOptions, Viewer, ViewerSummary, DEFAULT_ADDR};
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 use crate::npy_io::NpzReader;
 
@@ -16,7 +17,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use latentbki::wire::feature_space_id;
 use latentbki::{decode::Codebook, decode::Pca};
-pub use receive::{pump, spawn_reader, Ending, PumpOptions};
+pub use receive::{pump, pump_with, spawn_reader, Ending, PumpOptions};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -51,7 +52,53 @@ pub struct BaseStationArgs {
     #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
     commit_ms: u64,
     #[command(flatten)]
+    view: ViewArgs,
+    #[command(flatten)]
     out: OutputArgs,
+}
+
+/// The live 3D view (Foxglove) and the MCAP recording of the base station's map.
+#[derive(Args, Debug, Clone)]
+pub struct ViewArgs {
+    /// Serve the map live to Foxglove or Lichtblick (Foxglove WebSocket protocol) at ADDR [default:
+    /// 127.0.0.1:8765, this machine only; name another address to serve beyond it]. Write `--view=ADDR`
+    /// before a positional argument.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_ADDR)]
+    pub view: Option<std::net::SocketAddr>,
+    /// Record the view's topics to this MCAP file (Foxglove, Lichtblick, `ros2 bag`, PyPI `mcap` read it).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// At most this many view updates a second (changed voxels are coalesced in between).
+    #[arg(long, default_value_t = 10.0, value_parser = parse_rate)]
+    pub view_hz: f64,
+    /// Messages queued per viewer client before its oldest are dropped (a client that does not read costs
+    /// at most this much memory).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub view_backlog: u64,
+}
+
+impl ViewArgs {
+    /// Whether a view or a recording is asked for.
+    pub fn wanted(&self) -> bool {
+        self.view.is_some() || self.record.is_some()
+    }
+    /// Check the recording's path before anything is read.
+    pub fn check(&self) -> Result<()> {
+        if let Some(p) = &self.record {
+            check_output("--record", p, false)?;
+        }
+        Ok(())
+    }
+}
+
+/// `--view-hz`: a finite rate in (0, 1000].
+fn parse_rate(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(r) if r.is_finite() && r > 0.0 && r <= 1000.0 => Ok(r),
+        _ => Err(format!(
+            "`{s}`: give a number of updates per second in (0, 1000]"
+        )),
+    }
 }
 
 /// What to show of the map at the end: vocabulary, query, pictures.
@@ -67,7 +114,8 @@ pub struct OutputArgs {
     /// Text query for the heatmap (a phrase of the built-in table).
     #[arg(long)]
     query: Option<String>,
-    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`.
+    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`, `-gain.png` (information
+    /// gain: where to look next).
     #[arg(long)]
     png: Option<PathBuf>,
     /// Pixels per voxel in the PNGs (1..=16384; the image is at most 16384 pixels per side).
@@ -93,6 +141,9 @@ pub struct MapQueryArgs {
     /// With --query: list this many best-matching voxels.
     #[arg(long, default_value_t = 10)]
     top: usize,
+    /// Export the map as one full scene of the live view's topics to this MCAP file.
+    #[arg(long, value_name = "FILE.mcap")]
+    mcap: Option<PathBuf>,
     #[command(flatten)]
     out: OutputArgs,
 }
@@ -328,6 +379,7 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         check_output("--map", p, false)?;
     }
     check_outputs(&args.out)?;
+    args.view.check()?;
     let (vocab, query) = read_vocabulary(&args.out)?;
     let (mut store, mut base) = match &args.map {
         Some(p) => {
@@ -370,15 +422,41 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         duration: args.duration,
         stop,
     };
+    let viewer = if args.view.wanted() {
+        let o = view_options(&args.view, vocab.as_ref(), args.out.query.as_deref());
+        let v = Viewer::start(o)?;
+        if let (Some(a), Some(port)) = (args.view.view, v.port()) {
+            println!(
+                "viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)",
+                a.ip()
+            );
+        }
+        if let Some(m) = base.map() {
+            v.push_map(m);
+        }
+        base.watch();
+        Some(v)
+    } else {
+        None
+    };
     let chunks = spawn_reader(source);
-    let ending = pump(
+    let ending = pump_with(
         &mut base,
         store.as_mut().map(|s| s as &mut dyn MapStore),
         &chunks,
         &options,
+        |base, arrived| {
+            if let Some(v) = &viewer {
+                let changed = base.take_watched();
+                v.push(base, changed, arrived);
+            }
+        },
     )?;
     if ending == Ending::Signal {
         println!("stopped by a signal");
+    }
+    if let Some(v) = viewer {
+        print_view_summary(&v.finish());
     }
     print_summary(&base);
     let Some(map) = base.map() else {
@@ -443,6 +521,9 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
 /// Run `host-sim map-query`.
 pub fn map_query(args: &MapQueryArgs) -> Result<()> {
     check_outputs(&args.out)?;
+    if let Some(p) = &args.mcap {
+        check_output("--mcap", p, false)?;
+    }
     let (vocab, query) = read_vocabulary(&args.out)?;
     let base = read_map(&args.db)?;
     let Some(map) = base.map() else {
@@ -452,5 +533,84 @@ pub fn map_query(args: &MapQueryArgs) -> Result<()> {
         );
     };
     println!("{}: {} voxels", args.db.display(), map.len());
+    if let Some(path) = &args.mcap {
+        let view = ViewArgs {
+            view: None,
+            record: Some(path.clone()),
+            view_hz: 1000.0,
+            view_backlog: 1,
+        };
+        let v = Viewer::start(view_options(
+            &view,
+            vocab.as_ref(),
+            args.out.query.as_deref(),
+        ))?;
+        v.push_map(map);
+        let s = v.finish();
+        println!(
+            "wrote {}: {} voxels in the scene, {} messages, {} bytes",
+            path.display(),
+            s.voxels,
+            s.messages,
+            s.bytes
+        );
+    }
     show(map, &args.out, vocab.as_ref(), query.as_ref(), args.top)
+}
+
+/// The view's options: the vocabulary and query of the output options; clients' phrases are encoded with
+/// the built-in text table and the robots' PCA.
+pub fn view_options(
+    args: &ViewArgs,
+    vocab: Option<&Vocab>,
+    phrase: Option<&str>,
+) -> ViewOptions<DIM, VOCAB_CAP> {
+    let mut o = ViewOptions::new();
+    o.listen = args.view;
+    o.record = args.record.clone();
+    o.rate_hz = args.view_hz;
+    o.backlog = args.view_backlog as usize;
+    if let Some((names, cb, pca)) = vocab {
+        o.vocab = Some((names.clone(), cb.clone()));
+        let pca = pca.clone();
+        let table = crate::sim::vocab::Vocabulary::builtin();
+        o.phrases = Some(Box::new(move |p: &str| {
+            let e = table
+                .embeddings(&[p])
+                .map_err(|e| format!("\"{p}\": {e}"))?;
+            Codebook::from_pca(&pca, &e).map_err(|e| e.to_string())
+        }));
+    }
+    o.phrase = phrase.map(String::from);
+    o
+}
+
+/// The viewer's lines: the scene and the stream, the update latency, refusals.
+pub fn print_view_summary(s: &ViewerSummary) {
+    println!(
+        "viewer: {} voxels in the scene, {} messages, {} bytes",
+        s.voxels, s.messages, s.bytes
+    );
+    if !s.latencies.is_empty() {
+        let (median, p95) = median_p95(&s.latencies);
+        println!(
+            "viewer: frame arrival to view update: median {:.1} ms, p95 {:.1} ms ({} chunks, {} updates)",
+            median.as_secs_f64() * 1e3,
+            p95.as_secs_f64() * 1e3,
+            s.latencies.len(),
+            s.updates
+        );
+    }
+    println!("viewer: client messages refused {}", s.refused);
+    for e in &s.phrase_errors {
+        println!("viewer: query refused: {e}");
+    }
+}
+
+/// Median and 95th percentile (nearest rank).
+pub fn median_p95(samples: &[Duration]) -> (Duration, Duration) {
+    let mut v = samples.to_vec();
+    v.sort_unstable();
+    let at = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
+    (at(0.5), at(0.95))
 }

@@ -65,9 +65,20 @@ pub fn spawn_reader(mut source: Box<dyn Read + Send>) -> Receiver<std::io::Resul
 /// pending, until the input ends, the duration passes or `stop` is set; then commit what is left.
 pub fn pump<const D: usize>(
     base: &mut BaseStation<D>,
+    store: Option<&mut dyn MapStore>,
+    chunks: &Receiver<std::io::Result<Vec<u8>>>,
+    options: &PumpOptions,
+) -> Result<Ending> {
+    pump_with(base, store, chunks, options, |_, _| {})
+}
+
+/// [`pump`], calling `received(base, arrival)` after each chunk is applied (a live view's feed).
+pub fn pump_with<const D: usize>(
+    base: &mut BaseStation<D>,
     mut store: Option<&mut dyn MapStore>,
     chunks: &Receiver<std::io::Result<Vec<u8>>>,
     options: &PumpOptions,
+    mut received: impl FnMut(&mut BaseStation<D>, Instant),
 ) -> Result<Ending> {
     let start = Instant::now();
     let mut last_commit = Instant::now();
@@ -102,7 +113,11 @@ pub fn pump<const D: usize>(
             wait = wait.min(d.saturating_sub(now.duration_since(start)));
         }
         match chunks.recv_timeout(wait) {
-            Ok(Ok(bytes)) => base.receive(&bytes),
+            Ok(Ok(bytes)) => {
+                let arrived = Instant::now();
+                base.receive(&bytes);
+                received(base, arrived);
+            }
             Ok(Err(e)) => {
                 // Keep what was received before the error.
                 if let Some(s) = store.as_deref_mut() {

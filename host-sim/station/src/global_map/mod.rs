@@ -447,6 +447,11 @@ impl<const D: usize> GlobalMap<D> {
             d_optimality: p.d_optimality(),
         })
     }
+    /// The information-gain score of a candidate view whose points would fall at `points` (map frame):
+    /// [`latentbki::info_gain::view_score`] on the merged statistics of every robot ([`ObsMap::view_score`]).
+    pub fn view_score(&self, points: &[[f32; 3]]) -> f32 {
+        self.merged.view_score(points)
+    }
 }
 
 impl<const D: usize> ObsLookup<D> for GlobalMap<D> {

@@ -1,0 +1,520 @@
+//! `host-sim explore`: a robot that chooses where to look next by information gain, against random choice and
+//! nearest-frontier choice, in the procedural house.
+//!
+//! Why: the paper motivates its uncertainty by active perception but only reports it. Here the map's own
+//! posterior picks the next view: a candidate's score is the expected entropy drop of the voxels it would
+//! see ([`latentbki::info_gain`]), per metre of driving to it. The comparison is fair by construction:
+//!
+//! - the same house, start, camera (3072 of 640 × 480 pixels, 70°, 0.1–6 m), encoder noise model, PCA and
+//!   codebook for every explorer; seeds fixed, and each seed's house run by all three;
+//! - the same candidate views (0.5 m lattice × 8 headings, [`world`]) and the same geometric knowledge (all
+//!   know the surfaces; they learn the semantics);
+//! - the same budget of driving distance, and the same sensing along the way: a frame every 0.5 m of the
+//!   path (looking where it drives) and one at each chosen view.
+//!
+//! **Nearest frontier** goes to the nearest view of which at least a fifth of the surface voxels it would
+//! hit have no point within the kernel's reach yet (the classic frontier: the edge of the known map).
+//! **Random** takes any candidate within the remaining budget. **Information gain** takes the candidate of
+//! highest score / (path + 2.5 m).
+//!
+//! Accuracy and mIoU are those of the tables, on a fixed set of ground-truth voxels: every surface voxel the
+//! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
+//! voxel the map cannot answer is wrong.
+
+pub mod plot;
+pub mod world;
+
+use crate::eval::experiment::{decoding, Decoding, Setup};
+use crate::eval::methods::{Decoder, D};
+use crate::eval::metrics::Confusion;
+use crate::sim::indoor::{self, IndoorRun, IndoorScene};
+use crate::sim::sensor::DepthCamera;
+use crate::sim::vocab::Vocabulary;
+use crate::sim::{mix_all, LabelledPoint};
+use crate::ObsMap;
+use anyhow::{Context, Result};
+use latentbki::batch::spread;
+use latentbki::nalgebra::Isometry3;
+use latentbki::{info_gain::voxel_gain, kernel::KernelLut, key::VoxelKey, MapConfig};
+use rand_xoshiro::rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rustc_hash::FxHashMap;
+use std::path::PathBuf;
+use world::{View, World};
+
+/// How the next view is chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Planner {
+    /// Highest information gain per metre.
+    InformationGain,
+    /// Any view within the budget.
+    Random,
+    /// The nearest view onto unknown surface.
+    NearestFrontier,
+}
+
+impl Planner {
+    /// All three, in table order.
+    pub const ALL: [Planner; 3] = [Self::InformationGain, Self::Random, Self::NearestFrontier];
+    /// Name for tables and the plot.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::InformationGain => "information gain",
+            Self::Random => "random",
+            Self::NearestFrontier => "nearest frontier",
+        }
+    }
+}
+
+/// Metres added to the path length in the information-gain utility (a view next to the robot is not free):
+/// the default of `--utility-offset`. Chosen on house 1, seeds 1–3 (1 m: information gain reaches random's
+/// final accuracy at 60 % of its distance, level with nearest-frontier there; 2.5 m: 51 %, 6 points above).
+pub const UTILITY_OFFSET_M: f32 = 2.5;
+/// A view is a frontier if at least this share of the voxels it would hit are unknown.
+const FRONTIER_SHARE: f32 = 0.2;
+
+/// One measurement along a run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// Metres driven so far.
+    pub distance: f32,
+    /// Share of the ground-truth voxels labelled correctly.
+    pub accuracy: f64,
+    /// Mean IoU over the classes present.
+    pub miou: f64,
+    /// Frames integrated so far.
+    pub frames: u32,
+}
+
+/// The ground truth: voxels and their majority class.
+pub struct Truth {
+    voxels: Vec<(VoxelKey, u16)>,
+    classes: usize,
+}
+
+impl Truth {
+    /// Every voxel the scripted loop sees in `scene`, with the class most of its points have.
+    pub fn from_loop(scene: &IndoorScene, config: &MapConfig) -> Self {
+        let seq = indoor::sequence(scene, &IndoorRun::default());
+        let mut votes: FxHashMap<VoxelKey, Vec<u32>> = FxHashMap::default();
+        let classes = seq.classes.len();
+        for f in &seq.frames {
+            for p in &f.points {
+                if let Ok(k) = VoxelKey::from_position(p.position, 1.0 / config.voxel_size()) {
+                    votes.entry(k).or_insert_with(|| vec![0; classes])[usize::from(p.class)] += 1;
+                }
+            }
+        }
+        let mut voxels: Vec<(VoxelKey, u16)> = votes
+            .into_iter()
+            .map(|(k, v)| {
+                let best = (0..classes)
+                    .max_by_key(|&c| (v[c], usize::MAX - c))
+                    .unwrap_or(0);
+                (k, best as u16)
+            })
+            .collect();
+        voxels.sort_unstable();
+        Self { voxels, classes }
+    }
+
+    /// Number of ground-truth voxels.
+    pub fn len(&self) -> usize {
+        self.voxels.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.voxels.is_empty()
+    }
+
+    /// Every `n`-th voxel, chosen by a hash of its key (a fixed, spatially even subsample).
+    pub fn thinned(self, n: u64) -> Self {
+        let voxels = self
+            .voxels
+            .into_iter()
+            .filter(|(k, _)| {
+                let [x, y, z] = k.as_array();
+                mix_all(&[x as u64, y as u64, z as u64]).is_multiple_of(n.max(1))
+            })
+            .collect();
+        Self { voxels, ..self }
+    }
+
+    /// (voxels whose class differs in `other`, the rest): the changed and unchanged regions.
+    pub fn split(&self, other: &Truth) -> (Truth, Truth) {
+        let (changed, same) = self.voxels.iter().partition(|(k, c)| {
+            other
+                .voxels
+                .binary_search_by_key(k, |v| v.0)
+                .is_ok_and(|i| other.voxels[i].1 != *c)
+        });
+        let t = |voxels| Truth {
+            voxels,
+            classes: self.classes,
+        };
+        (t(changed), t(same))
+    }
+
+    /// (accuracy, mIoU) of `map` on these voxels; a voxel the map cannot answer is wrong.
+    pub fn score(&self, map: &ObsMap<D>, decoder: &Decoder) -> (f64, f64) {
+        let mut c = Confusion::new(self.classes);
+        for &(k, class) in &self.voxels {
+            let predicted = map
+                .posterior_in_reach(k)
+                .and_then(|p| decoder.argmax(&p.mean).map(|(i, _)| i));
+            c.add(usize::from(class), predicted);
+        }
+        (c.accuracy(), c.miou())
+    }
+}
+
+/// One robot's run: its map, what it knows of each voxel's confidence, and its odometer.
+struct Robot<'a> {
+    world: &'a World,
+    dec: &'a Decoding,
+    lut: KernelLut,
+    prior_lambda: f32,
+    camera: DepthCamera,
+    map: ObsMap<D>,
+    /// Kernel-weighted point count per voxel (the gathered λ above the prior), kept as frames arrive.
+    counts: FxHashMap<VoxelKey, f32>,
+    rng: Xoshiro256PlusPlus,
+    frame: u32,
+    travelled: f32,
+    utility_offset: f32,
+}
+
+impl Robot<'_> {
+    fn capture(&mut self, pose: &Isometry3<f32>) {
+        let points: Vec<LabelledPoint> =
+            self.camera.capture(&self.world.scene, pose, &mut self.rng);
+        let features = self.dec.encoder.encode_compressed(
+            &points,
+            self.frame,
+            &self.dec.projected,
+            &mut self.rng,
+        );
+        let positions: Vec<[f32; 3]> = points.iter().map(|p| p.position).collect();
+        self.map
+            .integrate(&Isometry3::identity(), &positions, &features);
+        for p in &positions {
+            if let Ok(k) = VoxelKey::from_position(*p, self.lut.inv_voxel_size()) {
+                spread(&self.lut, k, 0, |t, w| {
+                    *self.counts.entry(t).or_default() += w
+                });
+            }
+        }
+        self.frame += 1;
+    }
+
+    fn lambda(&self, key: VoxelKey) -> f32 {
+        self.prior_lambda + self.counts.get(&key).copied().unwrap_or(0.0)
+    }
+
+    /// The information-gain score of a candidate: Σ gain(λ, w) over its footprint.
+    fn score(&self, fp: &world::Footprint) -> f32 {
+        fp.weights
+            .iter()
+            .map(|&(k, w)| voxel_gain(self.lambda(k), w))
+            .sum()
+    }
+
+    fn unknown_share(&self, fp: &world::Footprint) -> f32 {
+        let unknown = fp
+            .hits
+            .iter()
+            .filter(|k| self.counts.get(k).copied().unwrap_or(0.0) < 0.5)
+            .count();
+        unknown as f32 / fp.hits.len().max(1) as f32
+    }
+
+    fn choose(&mut self, planner: Planner, dist: &[f32], here: usize, budget: f32) -> Option<View> {
+        let left = budget - self.travelled;
+        let options: Vec<(View, &world::Footprint, f32)> = self
+            .world
+            .views
+            .iter()
+            .filter(|(v, _)| v.cell != here && dist[v.cell] <= left)
+            .map(|(v, fp)| (*v, fp, dist[v.cell]))
+            .collect();
+        if options.is_empty() {
+            return None;
+        }
+        let best_by = |key: &dyn Fn(&(View, &world::Footprint, f32)) -> f32| {
+            options
+                .iter()
+                .max_by(|a, b| key(a).total_cmp(&key(b)))
+                .map(|o| o.0)
+        };
+        match planner {
+            Planner::Random => {
+                Some(options[(self.rng.next_u64() % options.len() as u64) as usize].0)
+            }
+            Planner::InformationGain => {
+                best_by(&|(_, fp, d)| self.score(fp) / (d + self.utility_offset))
+            }
+            Planner::NearestFrontier => {
+                let frontier = options
+                    .iter()
+                    .map(|o| (o, self.unknown_share(o.1)))
+                    .filter(|(_, u)| *u >= FRONTIER_SHARE)
+                    .min_by(|a, b| a.0 .2.total_cmp(&b.0 .2).then(b.1.total_cmp(&a.1)))
+                    .map(|(o, _)| o.0);
+                // No frontier left: the view onto the most unknown surface, nearest first.
+                frontier.or_else(|| best_by(&|(_, fp, d)| self.unknown_share(fp) - 1e-3 * d))
+            }
+        }
+    }
+}
+
+/// One explorer's settings.
+#[derive(Clone, Copy, Debug)]
+pub struct Explorer {
+    /// How it chooses.
+    pub planner: Planner,
+    /// Seed of its camera sampling and random choices.
+    pub seed: u64,
+    /// Metres it may drive.
+    pub budget: f32,
+    /// Information gain's utility: score / (path + this many metres).
+    pub utility_offset: f32,
+}
+
+/// Run one explorer until its distance budget is spent; the accuracy after every frame (those along the
+/// paths too: every explorer is measured as often per metre).
+pub fn run(
+    world: &World,
+    dec: &Decoding,
+    truth: &Truth,
+    config: &MapConfig,
+    explorer: &Explorer,
+) -> Result<Vec<Sample>> {
+    let Explorer {
+        planner,
+        seed,
+        budget,
+        utility_offset,
+    } = *explorer;
+    let mut robot = Robot {
+        world,
+        dec,
+        lut: KernelLut::new(config)?,
+        prior_lambda: config.prior().lambda,
+        camera: DepthCamera::default(),
+        map: ObsMap::new(*config)?,
+        counts: FxHashMap::default(),
+        rng: Xoshiro256PlusPlus::seed_from_u64(mix_all(&[seed, 0xE7F1])),
+        frame: 0,
+        travelled: 0.0,
+        utility_offset,
+    };
+    let mut here = world
+        .nearest_free(world.scene.room_centre(0))
+        .context("the house has no free cell")?;
+    let measure = |robot: &Robot| {
+        let (accuracy, miou) = truth.score(&robot.map, &dec.decoder);
+        Sample {
+            distance: robot.travelled,
+            accuracy,
+            miou,
+            frames: robot.frame,
+        }
+    };
+    robot.capture(&world.pose(View {
+        cell: here,
+        yaw: 0.0,
+    }));
+    let mut samples = vec![measure(&robot)];
+    loop {
+        let (dist, prev) = world.distances(here);
+        let Some(goal) = robot.choose(planner, &dist, here, budget) else {
+            break;
+        };
+        let path = World::path(&prev, goal.cell);
+        let mut from = world.centre(here);
+        for (i, &c) in path.iter().enumerate() {
+            let to = world.centre(c);
+            robot.travelled += ((to[0] - from[0]).powi(2) + (to[1] - from[1]).powi(2)).sqrt();
+            if i % 2 == 1 && c != goal.cell {
+                let yaw = (to[1] - from[1]).atan2(to[0] - from[0]);
+                robot.capture(&world.pose(View { cell: c, yaw }));
+                samples.push(measure(&robot));
+            }
+            from = to;
+        }
+        robot.capture(&world.pose(goal));
+        here = goal.cell;
+        samples.push(measure(&robot));
+    }
+    Ok(samples)
+}
+
+/// The mean over runs of "accuracy (or mIoU) after the last view within d metres", on a grid of d.
+pub fn mean_curve(runs: &[Vec<Sample>], grid: &[f32], get: fn(&Sample) -> f64) -> Vec<f64> {
+    grid.iter()
+        .map(|&d| {
+            let sum: f64 = runs
+                .iter()
+                .map(|r| {
+                    r.iter()
+                        .take_while(|s| s.distance <= d + 1e-4)
+                        .last()
+                        .map_or(0.0, get)
+                })
+                .sum();
+            sum / runs.len().max(1) as f64
+        })
+        .collect()
+}
+
+/// `host-sim explore`.
+#[derive(clap::Args, Debug)]
+pub struct ExploreArgs {
+    /// Driving budget per run, metres.
+    #[arg(long, default_value_t = 40.0)]
+    pub budget: f32,
+    /// Runs per explorer (seeds 1..=N of the camera's pixel sampling, the encoder noise and random choice).
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u64,
+    /// Seed of the house layout.
+    #[arg(long, default_value_t = 1)]
+    pub layout_seed: u64,
+    /// Information gain's utility is score / (path + this many metres).
+    #[arg(long, default_value_t = UTILITY_OFFSET_M)]
+    pub utility_offset: f32,
+    /// Directory for the plot.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+}
+
+/// Run every explorer on every seed, print the table and the headline, write `explore.png`.
+pub fn explore(args: &ExploreArgs) -> Result<()> {
+    if !(args.budget > 0.0 && args.budget.is_finite()) || args.seeds == 0 {
+        anyhow::bail!("--budget must be a positive number of metres and --seeds at least 1");
+    }
+    if !(args.utility_offset > 0.0 && args.utility_offset.is_finite()) {
+        anyhow::bail!("--utility-offset must be a positive number of metres");
+    }
+    let scene = IndoorScene::generate(args.layout_seed);
+    let training = IndoorScene::generate(mix_all(&[args.layout_seed, 0x7EA1]));
+    let train_seq = indoor::sequence(
+        &training,
+        &IndoorRun {
+            seed: mix_all(&[args.layout_seed, 0x7EA1]),
+            ..IndoorRun::default()
+        },
+    );
+    let config = train_seq.config;
+    // A quarter of the voxels (spatially even): the curves are measured after every frame.
+    let truth = Truth::from_loop(&scene, &config).thinned(4);
+    let world = World::new(scene, &config, DepthCamera::default().pixels_per_frame)?;
+    let mut runs: Vec<Vec<Vec<Sample>>> = vec![Vec::new(); Planner::ALL.len()];
+    for seed in 1..=args.seeds {
+        let setup = Setup {
+            seed,
+            ..Setup::default()
+        };
+        let dec = decoding(&Vocabulary::builtin(), &train_seq, &setup)?;
+        let results: Vec<Result<Vec<Sample>>> = std::thread::scope(|s| {
+            let handles: Vec<_> = Planner::ALL
+                .iter()
+                .map(|&p| {
+                    let (world, dec, truth, config) = (&world, &dec, &truth, &config);
+                    s.spawn(move || {
+                        let explorer = Explorer {
+                            planner: p,
+                            seed,
+                            budget: args.budget,
+                            utility_offset: args.utility_offset,
+                        };
+                        run(world, dec, truth, config, &explorer)
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| {
+                    h.join()
+                        .unwrap_or_else(|_| Err(anyhow::anyhow!("a run panicked")))
+                })
+                .collect()
+        });
+        for (i, r) in results.into_iter().enumerate() {
+            runs[i].push(r?);
+        }
+    }
+    let step = 0.25;
+    let grid: Vec<f32> = (0..=(args.budget / step).ceil() as usize)
+        .map(|i| (i as f32 * step).min(args.budget))
+        .collect();
+    let acc: Vec<Vec<f64>> = runs
+        .iter()
+        .map(|r| mean_curve(r, &grid, |s| s.accuracy))
+        .collect();
+    let miou: Vec<Vec<f64>> = runs
+        .iter()
+        .map(|r| mean_curve(r, &grid, |s| s.miou))
+        .collect();
+    println!(
+        "explore: house {} ({} ground-truth voxels, {} candidate views), budget {} m, {} seeds",
+        args.layout_seed,
+        truth.len(),
+        world.views.len(),
+        args.budget,
+        args.seeds
+    );
+    for (i, p) in Planner::ALL.iter().enumerate() {
+        let frames: f64 = runs[i]
+            .iter()
+            .map(|r| f64::from(r.last().map_or(0, |s| s.frames)))
+            .sum::<f64>()
+            / args.seeds as f64;
+        let driven: f64 = runs[i]
+            .iter()
+            .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
+            .sum::<f64>()
+            / args.seeds as f64;
+        println!(
+            "  {:<17} final accuracy {:5.1} %, mIoU {:5.1} %, {:5.1} frames, {:4.1} m driven",
+            p.name(),
+            100.0 * acc[i].last().copied().unwrap_or(0.0),
+            100.0 * miou[i].last().copied().unwrap_or(0.0),
+            frames,
+            driven
+        );
+    }
+    let headline = headline(&grid, &acc, &runs[1]);
+    println!("{headline}");
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let path = args.out.join("explore.png");
+    plot::curves(&path, &grid, &acc, &miou).map_err(|e| anyhow::anyhow!("{e}"))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// The headline: where information gain reaches random's final accuracy, and the accuracies there.
+fn headline(grid: &[f32], acc: &[Vec<f64>], random_runs: &[Vec<Sample>]) -> String {
+    let (ig, random, frontier) = (&acc[0], &acc[1], &acc[2]);
+    let target = random.last().copied().unwrap_or(0.0);
+    let random_distance = random_runs
+        .iter()
+        .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
+        .sum::<f64>()
+        / random_runs.len().max(1) as f64;
+    match ig.iter().position(|&a| a >= target) {
+        Some(i) => format!(
+            "exploration: information gain reaches random's final accuracy at {:.0} % of its distance; at that distance nearest-frontier {:.1} %, information gain {:.1} %",
+            100.0 * f64::from(grid[i]) / random_distance.max(1e-9),
+            100.0 * frontier[i],
+            100.0 * ig[i]
+        ),
+        None => format!(
+            "exploration: information gain does not reach random's final accuracy ({:.1} %) within the budget; at the end nearest-frontier {:.1} %, information gain {:.1} %",
+            100.0 * target,
+            100.0 * frontier.last().copied().unwrap_or(0.0),
+            100.0 * ig.last().copied().unwrap_or(0.0)
+        ),
+    }
+}

@@ -1,0 +1,111 @@
+//! Watch the map live in Foxglove (or Lichtblick), and record it as MCAP: a Foxglove WebSocket server and
+//! MCAP writer beside ingest, through Foxglove's SDK (crate `foxglove`).
+//!
+//! **Representation: `foxglove.SceneUpdate` cubes, one entity per 8 × 8 × 8-voxel block** ([`scene`]).
+//! Foxglove keys scene entities by id on a topic, so an update replaces exactly the blocks whose voxels
+//! changed and nothing else — incremental updates are what this schema is for. A `foxglove.PointCloud`
+//! is 7× smaller per voxel (16 B against ≈ 113 B) but replaces the whole cloud on every message: at 100k
+//! voxels each update would be the full 1.6 MB, however few voxels changed. Cubes also show voxels as
+//! what they are (a side of the voxel size, in metres, at any zoom), and Foxglove draws each entity's
+//! cubes as one instanced mesh, so 100k cubes are ~200 draw calls. Measured (`host-sim bench-view`): the
+//! full scene of a 100k-voxel map is one ≈ 11 MB message per layer, built and encoded in the figure that
+//! command prints (goal ≤ 50 ms).
+//!
+//! **Topics** (frame `map`): [`Layer::Classes`] `/map/classes`, [`Layer::Heat`] `/map/heat`,
+//! [`Layer::Uncertainty`] `/map/uncertainty`, [`Layer::Robots`] `/map/robots` (`foxglove.SceneUpdate`,
+//! protobuf); [`LEGEND_TOPIC`] (class → colour, the phrase in force) and [`STATUS_TOPIC`] (the link's
+//! counters and the viewer's own), JSON. The query phrase is the Foxglove parameter
+//! [`guard::QUERY_PARAMETER`]; setting it re-scores every voxel and re-sends the heat layer whole.
+//!
+//! **Flow.** Ingest never waits on the view: it copies the voxels a frame changed into an inbox (a map
+//! keyed by voxel, so a burst coalesces and the inbox never outgrows the map) under a lock held only for
+//! the copy, and carries on. The view thread wakes at most `rate_hz` times a second, applies the inbox to
+//! its own copy of the map, re-decodes the voxels within the kernel's reach of each change and sends the
+//! blocks that changed. A client that subscribes gets the whole layer at once (late joiners see the full
+//! map). Each client has its own bounded queue in the SDK (`backlog` messages; the oldest are dropped
+//! when a client does not read), so a stalled client costs bounded memory and nothing else.
+
+pub mod guard;
+mod live;
+pub mod scene;
+
+pub use live::{Viewer, ViewerSummary};
+pub use scene::{BlockKey, Layer, Scene, VoxelRow};
+
+use latentbki::decode::Codebook;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// The legend topic: JSON `{"classes": [{"index", "name", "rgb"}], "query": phrase, ...}`.
+pub const LEGEND_TOPIC: &str = "/map/legend";
+/// The link's counters and the viewer's own, JSON.
+pub const STATUS_TOPIC: &str = "/link/status";
+/// Where the live view listens unless told otherwise (loopback only).
+pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
+
+/// Turns a phrase into a one-entry query codebook (the base station's text table and the robots' PCA).
+pub type PhraseEncoder<const D: usize, const K: usize> =
+    Box<dyn Fn(&str) -> Result<Codebook<D, K>, String> + Send>;
+
+/// How the view runs.
+pub struct ViewOptions<const D: usize, const K: usize> {
+    /// Serve Foxglove's WebSocket protocol here (None: no server).
+    pub listen: Option<SocketAddr>,
+    /// Write the topics to this MCAP file.
+    pub record: Option<PathBuf>,
+    /// At most this many view updates a second.
+    pub rate_hz: f64,
+    /// Messages queued per client before the oldest are dropped.
+    pub backlog: usize,
+    /// Class names and their codebook (None: voxels are grey, no class).
+    pub vocab: Option<(Vec<String>, Codebook<D, K>)>,
+    /// Encodes the phrases clients set (None: the heat layer stays empty).
+    pub phrases: Option<PhraseEncoder<D, K>>,
+    /// The phrase in force at the start.
+    pub phrase: Option<String>,
+}
+
+impl<const D: usize, const K: usize> ViewOptions<D, K> {
+    /// Defaults: no server, no recording, 10 updates/s, 64 messages per client.
+    pub fn new() -> Self {
+        Self {
+            listen: None,
+            record: None,
+            rate_hz: 10.0,
+            backlog: 64,
+            vocab: None,
+            phrases: None,
+            phrase: None,
+        }
+    }
+}
+
+impl<const D: usize, const K: usize> Default for ViewOptions<D, K> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Why the view could not start or finish.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    /// The WebSocket server did not start (address in use, not local, …).
+    #[error("the live view cannot listen on {addr}: {error}")]
+    Listen {
+        /// Where.
+        addr: SocketAddr,
+        /// Why.
+        error: foxglove::FoxgloveError,
+    },
+    /// The recording could not be written.
+    #[error("cannot write the recording {path}: {error}")]
+    Record {
+        /// The file.
+        path: String,
+        /// Why.
+        error: foxglove::FoxgloveError,
+    },
+    /// A phrase could not be encoded.
+    #[error("query: {0}")]
+    Phrase(String),
+}

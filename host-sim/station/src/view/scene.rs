@@ -1,0 +1,489 @@
+//! The map's layers as Foxglove scene entities: one `SceneEntity` of cubes per 8 × 8 × 8-voxel block.
+//!
+//! [`Scene`] keeps what the view shows of every observed voxel (a [`VoxelRow`]: its decoded class, the
+//! query's cosine score, its E-optimality and the robots that observed it), decoded from the map with the
+//! same calls `map-query` makes ([`GlobalMap::posterior`], [`Codebook::argmax`], [`Codebook::score`]), so the view
+//! and the command agree voxel for voxel. A change of one voxel changes the posteriors of every observed
+//! voxel within the kernel's reach, so [`Scene::update`] re-decodes those too and reports the blocks
+//! they fall in; only those blocks' entities are sent again. The exact value of every cube is in its
+//! entity's metadata (one comma-separated list per entity, in cube order), which Foxglove shows on
+//! selection and which the tests read back.
+
+use crate::export::{label_colour, ramp};
+use crate::global_map::GlobalMap;
+use foxglove::messages::{
+    scene_entity_deletion, Color, CubePrimitive, KeyValuePair, Pose, Quaternion, SceneEntity,
+    SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
+};
+use latentbki::{decode::Codebook, inference::Spread, key::VoxelKey};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::fmt::Write as _;
+
+/// Voxels per block side: 2^3 = 8, so a block holds at most 512 cubes.
+pub const BLOCK_SHIFT: i32 = 3;
+
+/// The frame every entity is in (the map's frame, metres).
+pub const FRAME: &str = "map";
+
+/// A block of 8 × 8 × 8 voxels: the unit of an incremental update.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BlockKey {
+    /// Block index along x.
+    pub x: i32,
+    /// Block index along y.
+    pub y: i32,
+    /// Block index along z.
+    pub z: i32,
+}
+
+impl BlockKey {
+    /// The block a voxel is in.
+    pub fn of(k: VoxelKey) -> Self {
+        Self {
+            x: k.x >> BLOCK_SHIFT,
+            y: k.y >> BLOCK_SHIFT,
+            z: k.z >> BLOCK_SHIFT,
+        }
+    }
+    /// The entity id of this block (the same on every layer's topic).
+    pub fn id(&self) -> String {
+        format!("block {} {} {}", self.x, self.y, self.z)
+    }
+}
+
+/// One layer of the view: one topic of `foxglove.SceneUpdate`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Layer {
+    /// Each voxel coloured by its decoded class (the legend is on [`super::LEGEND_TOPIC`]).
+    Classes,
+    /// The query phrase's cosine score (viridis ramp over the scores when the phrase was set).
+    Heat,
+    /// E-optimality in the authors' convention (their `t_var`, λ > 2), viridis ramp over log E.
+    Uncertainty,
+    /// Which robot observed the voxel (palette by robot id; white: several robots).
+    Robots,
+}
+
+impl Layer {
+    /// Every layer.
+    pub const ALL: [Layer; 4] = [
+        Layer::Classes,
+        Layer::Heat,
+        Layer::Uncertainty,
+        Layer::Robots,
+    ];
+    /// Its topic.
+    pub fn topic(self) -> &'static str {
+        match self {
+            Layer::Classes => "/map/classes",
+            Layer::Heat => "/map/heat",
+            Layer::Uncertainty => "/map/uncertainty",
+            Layer::Robots => "/map/robots",
+        }
+    }
+    /// The metadata key of its per-cube values.
+    pub fn key(self) -> &'static str {
+        match self {
+            Layer::Classes => "class",
+            Layer::Heat => "score",
+            Layer::Uncertainty => "e_optimality",
+            Layer::Robots => "robots",
+        }
+    }
+}
+
+/// What the view shows of one observed voxel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VoxelRow<const D: usize> {
+    /// Posterior mean (kept so a new phrase is scored without gathering again).
+    pub mean: [f32; D],
+    /// Best class and its cosine score (None without a vocabulary).
+    pub class: Option<(usize, f32)>,
+    /// The query's cosine score (None without a query).
+    pub heat: Option<f32>,
+    /// E-optimality, authors' convention (None for λ ≤ 2).
+    pub e_opt: Option<f32>,
+    /// Robots whose contributions the voxel holds, ascending.
+    pub robots: Vec<u16>,
+}
+
+/// Colour ranges, fixed between full scenes so that an unchanged cube keeps its colour.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Range {
+    lo: f32,
+    hi: f32,
+}
+
+impl Range {
+    fn over(values: impl Iterator<Item = f32>) -> Self {
+        let (lo, hi) = values
+            .filter(|v| v.is_finite())
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
+        if lo.is_finite() {
+            Self { lo, hi }
+        } else {
+            Self { lo: 0.0, hi: 1.0 }
+        }
+    }
+    fn t(&self, v: f32) -> f32 {
+        (v - self.lo) / (self.hi - self.lo).max(1e-6)
+    }
+}
+
+/// Grey for a voxel without a value on a layer.
+const UNDEFINED: [u8; 3] = [128, 128, 128];
+
+/// The view's copy of the decoded map, block by block.
+pub struct Scene<const D: usize, const K: usize> {
+    voxel_size: f32,
+    rows: HashMap<VoxelKey, VoxelRow<D>>,
+    blocks: BTreeMap<BlockKey, BTreeSet<VoxelKey>>,
+    heat_range: Range,
+    log_e_range: Option<Range>,
+}
+
+impl<const D: usize, const K: usize> Scene<D, K> {
+    /// An empty scene for voxels of this size (metres).
+    pub fn new(voxel_size: f32) -> Self {
+        Self {
+            voxel_size,
+            rows: HashMap::new(),
+            blocks: BTreeMap::new(),
+            heat_range: Range { lo: 0.0, hi: 1.0 },
+            log_e_range: None,
+        }
+    }
+
+    /// Voxels in the scene.
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+    /// Whether the scene holds no voxel.
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+    /// A voxel's row.
+    pub fn row(&self, k: &VoxelKey) -> Option<&VoxelRow<D>> {
+        self.rows.get(k)
+    }
+    /// Blocks holding at least one voxel.
+    pub fn blocks(&self) -> impl Iterator<Item = &BlockKey> {
+        self.blocks.keys()
+    }
+
+    /// Observed voxels whose posterior a change of `changed` alters: each changed voxel and every
+    /// observed voxel within the kernel's reach of it.
+    pub fn affected(
+        map: &GlobalMap<D>,
+        changed: impl IntoIterator<Item = VoxelKey>,
+    ) -> Vec<VoxelKey> {
+        let r = map.map_config().reach();
+        let mut out = BTreeSet::new();
+        for k in changed {
+            for dx in -r..=r {
+                for dy in -r..=r {
+                    for dz in -r..=r {
+                        let n = VoxelKey::new(k.x + dx, k.y + dy, k.z + dz);
+                        if map.voxel(&n).is_some() {
+                            out.insert(n);
+                        }
+                    }
+                }
+            }
+        }
+        out.into_iter().collect()
+    }
+
+    /// Decode `keys` from `map` again (a key the map no longer holds leaves the scene); returns the
+    /// blocks whose entities changed.
+    pub fn update(
+        &mut self,
+        map: &GlobalMap<D>,
+        keys: &[VoxelKey],
+        vocab: Option<&Codebook<D, K>>,
+        query: Option<&Codebook<D, K>>,
+    ) -> BTreeSet<BlockKey> {
+        let mut dirty = BTreeSet::new();
+        for &k in keys {
+            let block = BlockKey::of(k);
+            let row = map.voxel(&k).and_then(|v| {
+                let p = map.posterior(&k)?;
+                let mut robots: Vec<u16> = v
+                    .closed
+                    .iter()
+                    .chain(v.live.iter().map(|c| &c.id))
+                    .map(|id| id.robot)
+                    .collect();
+                robots.sort_unstable();
+                robots.dedup();
+                Some(VoxelRow {
+                    mean: p.mean,
+                    class: vocab.and_then(|cb| cb.argmax(&p.mean)),
+                    heat: query.map(|q| q.score(&p.mean, 0)),
+                    e_opt: p.optimality(Spread::AuthorsTVar).map(|o| o.e),
+                    robots,
+                })
+            });
+            let changed = match row {
+                Some(row) => {
+                    self.blocks.entry(block).or_default().insert(k);
+                    self.rows.insert(k, row.clone()) != Some(row)
+                }
+                None => {
+                    if let Some(b) = self.blocks.get_mut(&block) {
+                        b.remove(&k);
+                        if b.is_empty() {
+                            self.blocks.remove(&block);
+                        }
+                    }
+                    self.rows.remove(&k).is_some()
+                }
+            };
+            if changed {
+                dirty.insert(block);
+            }
+        }
+        dirty
+    }
+
+    /// Score every voxel against a new query (or none) and fix the heat colour range to its scores.
+    pub fn set_query(&mut self, query: Option<&Codebook<D, K>>) {
+        for row in self.rows.values_mut() {
+            row.heat = query.map(|q| q.score(&row.mean, 0));
+        }
+        self.heat_range = Range::over(self.rows.values().filter_map(|r| r.heat));
+    }
+
+    /// Fix the colour ranges to the values now in the scene (at a full scene).
+    pub fn fix_ranges(&mut self) {
+        self.heat_range = Range::over(self.rows.values().filter_map(|r| r.heat));
+        let logs = self
+            .rows
+            .values()
+            .filter_map(|r| r.e_opt.filter(|e| *e > 0.0).map(f32::ln));
+        self.log_e_range = Some(Range::over(logs));
+    }
+
+    fn colour(&self, layer: Layer, row: &VoxelRow<D>) -> [u8; 3] {
+        match layer {
+            Layer::Classes => row.class.map_or(UNDEFINED, |(c, _)| label_colour(c)),
+            Layer::Heat => row.heat.map_or(UNDEFINED, |s| ramp(self.heat_range.t(s))),
+            Layer::Uncertainty => match (row.e_opt.filter(|e| *e > 0.0), self.log_e_range) {
+                (Some(e), Some(r)) => ramp(r.t(e.ln())),
+                (Some(_), None) => ramp(0.5),
+                (None, _) => UNDEFINED,
+            },
+            Layer::Robots => match row.robots.as_slice() {
+                [one] => label_colour(usize::from(*one)),
+                [] => UNDEFINED,
+                _ => [255, 255, 255],
+            },
+        }
+    }
+
+    /// The value a layer shows of a voxel, as its metadata lists it (empty: none).
+    fn value(layer: Layer, row: &VoxelRow<D>, out: &mut String) {
+        let _ = match layer {
+            Layer::Classes => row.class.map(|(c, _)| write!(out, "{c}")),
+            Layer::Heat => row.heat.map(|s| write!(out, "{s}")),
+            Layer::Uncertainty => row.e_opt.map(|e| write!(out, "{e}")),
+            Layer::Robots => {
+                for (i, r) in row.robots.iter().enumerate() {
+                    let _ = write!(out, "{}{r}", if i > 0 { "+" } else { "" });
+                }
+                None
+            }
+        };
+    }
+
+    /// A block's entity on a layer (None if the block is empty).
+    pub fn entity(&self, layer: Layer, block: BlockKey, time: Timestamp) -> Option<SceneEntity> {
+        let keys = self.blocks.get(&block)?;
+        let side = f64::from(self.voxel_size);
+        let mut cubes = Vec::with_capacity(keys.len());
+        let mut values = String::with_capacity(keys.len() * 6);
+        let mut positions = String::with_capacity(keys.len() * 12);
+        for (i, k) in keys.iter().enumerate() {
+            let row = &self.rows[k];
+            let c = k.centroid(self.voxel_size);
+            let [r, g, b] = self.colour(layer, row);
+            cubes.push(CubePrimitive {
+                pose: Some(Pose {
+                    position: Some(Vector3 {
+                        x: f64::from(c[0]),
+                        y: f64::from(c[1]),
+                        z: f64::from(c[2]),
+                    }),
+                    orientation: Some(Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: 0.0,
+                        w: 1.0,
+                    }),
+                }),
+                size: Some(Vector3 {
+                    x: side,
+                    y: side,
+                    z: side,
+                }),
+                color: Some(Color {
+                    r: f64::from(r) / 255.0,
+                    g: f64::from(g) / 255.0,
+                    b: f64::from(b) / 255.0,
+                    a: 1.0,
+                }),
+            });
+            if i > 0 {
+                values.push(',');
+                positions.push(',');
+            }
+            Self::value(layer, row, &mut values);
+            let _ = write!(positions, "{} {} {}", k.x, k.y, k.z);
+        }
+        Some(SceneEntity {
+            timestamp: Some(time),
+            frame_id: FRAME.into(),
+            id: block.id(),
+            metadata: vec![
+                KeyValuePair {
+                    key: "voxels".into(),
+                    value: positions,
+                },
+                KeyValuePair {
+                    key: layer.key().into(),
+                    value: values,
+                },
+            ],
+            cubes,
+            ..Default::default()
+        })
+    }
+
+    /// The entities of `blocks` on a layer; a block that emptied is deleted.
+    pub fn update_message(
+        &self,
+        layer: Layer,
+        blocks: &BTreeSet<BlockKey>,
+        time: Timestamp,
+    ) -> SceneUpdate {
+        let mut msg = SceneUpdate::default();
+        for &b in blocks {
+            match self.entity(layer, b, time) {
+                Some(e) => msg.entities.push(e),
+                None => msg.deletions.push(SceneEntityDeletion {
+                    timestamp: Some(time),
+                    r#type: scene_entity_deletion::Type::MatchingId as i32,
+                    id: b.id(),
+                }),
+            }
+        }
+        msg
+    }
+
+    /// The whole layer: everything shown before is deleted, then every block.
+    pub fn full_message(&self, layer: Layer, time: Timestamp) -> SceneUpdate {
+        let mut msg = SceneUpdate {
+            deletions: vec![SceneEntityDeletion {
+                timestamp: Some(time),
+                r#type: scene_entity_deletion::Type::All as i32,
+                id: String::new(),
+            }],
+            entities: Vec::with_capacity(self.blocks.len()),
+        };
+        for &b in self.blocks.keys() {
+            msg.entities.extend(self.entity(layer, b, time));
+        }
+        msg
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use latentbki::wire::{SessionConfig, Summary};
+    use latentbki::{obs::ObsStats, wire::SummaryCodec, MapConfig};
+
+    const D: usize = 4;
+
+    fn map() -> GlobalMap<D> {
+        let codec = SummaryCodec {
+            mean_bits: 8,
+            psi_blocks: 4,
+        };
+        GlobalMap::new(SessionConfig::new(&MapConfig::default(), D, codec, 0)).unwrap()
+    }
+
+    fn observe(map: &mut GlobalMap<D>, robot: u16, key: VoxelKey, m: f32) {
+        let obs = ObsStats {
+            count: 5.0,
+            mean: [m, 1.0 - m, 0.0, 0.0],
+            scatter: [0.1; D],
+        };
+        let s = Summary {
+            key,
+            residency: 0,
+            is_final: true,
+            obs,
+            at_ceiling: Default::default(),
+        };
+        map.apply(robot, 1, 0, &s);
+    }
+
+    fn vocab() -> Codebook<D, 4> {
+        Codebook::from_embeddings(&[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]).unwrap()
+    }
+
+    #[test]
+    fn updates_carry_only_the_blocks_in_reach_and_full_scenes_everything() {
+        let mut m = map();
+        let (a, b, far) = (
+            VoxelKey::new(0, 0, 0),
+            VoxelKey::new(7, 0, 0),
+            VoxelKey::new(40, 0, 0),
+        );
+        for (k, v) in [(a, 0.9), (b, 0.2), (far, 0.8)] {
+            observe(&mut m, 1, k, v);
+        }
+        let cb = vocab();
+        let mut scene = Scene::<D, 4>::new(m.map_config().voxel_size());
+        let all = m.sorted_keys();
+        let dirty = scene.update(&m, &all, Some(&cb), None);
+        assert_eq!(scene.len(), 3);
+        assert_eq!(dirty.len(), 2, "a and b share a block");
+        assert_eq!(scene.row(&a).unwrap().class.unwrap().0, 0);
+        assert_eq!(scene.row(&b).unwrap().class.unwrap().0, 1);
+        // A second robot observes `far`: only its block changes; `a`'s block is untouched.
+        observe(&mut m, 2, far, 0.1);
+        let keys = Scene::<D, 4>::affected(&m, [far]);
+        assert_eq!(keys, vec![far]);
+        let dirty = scene.update(&m, &keys, Some(&cb), None);
+        assert_eq!(
+            dirty.into_iter().collect::<Vec<_>>(),
+            vec![BlockKey::of(far)]
+        );
+        assert_eq!(scene.row(&far).unwrap().robots, vec![1, 2]);
+        // Nothing changed: nothing to send.
+        assert!(scene.update(&m, &keys, Some(&cb), None).is_empty());
+        // The full scene deletes everything first, then holds every voxel once, values in metadata.
+        let t = Timestamp::now();
+        let full = scene.full_message(Layer::Classes, t);
+        assert_eq!(full.deletions.len(), 1);
+        let cubes: usize = full.entities.iter().map(|e| e.cubes.len()).sum();
+        assert_eq!(cubes, 3);
+        let e = scene.entity(Layer::Robots, BlockKey::of(far), t).unwrap();
+        assert_eq!(e.metadata[0].value, "40 0 0");
+        assert_eq!(e.metadata[1].value, "1+2");
+        // A phrase scores every voxel; the heat layer's metadata carries the exact score.
+        scene.set_query(Some(&cb));
+        let h = scene.entity(Layer::Heat, BlockKey::of(a), t).unwrap();
+        let scores: Vec<f32> = h.metadata[1]
+            .value
+            .split(',')
+            .map(|s| s.parse().unwrap())
+            .collect();
+        assert_eq!(scores[0], scene.row(&a).unwrap().heat.unwrap());
+        assert!(scores[0] > scores[1], "a matches category 0 better than b");
+    }
+}

@@ -1,0 +1,115 @@
+//! The exploration run's pieces: the house is drivable, the explorers' fast score is the map's view score,
+//! and a short run of each explorer stays within its budget and learns.
+
+use host_sim::explore::world::{footprint, World};
+use host_sim::explore::{mean_curve, run, Explorer, Planner, Sample, Truth, UTILITY_OFFSET_M};
+use host_sim::sim::indoor::{self, IndoorRun, IndoorScene};
+use host_sim::sim::mix_all;
+use host_sim::sim::vocab::Vocabulary;
+use host_sim::ObsMap;
+use latentbki::kernel::KernelLut;
+use latentbki::nalgebra::Isometry3;
+
+#[test]
+fn every_room_is_reachable_and_the_fast_score_is_the_maps() {
+    let scene = IndoorScene::generate(1);
+    let config = indoor::sequence(&scene, &IndoorRun::default()).config;
+    let world = World::new(scene.clone(), &config, 3072).unwrap();
+    let start = world.nearest_free(scene.room_centre(0)).unwrap();
+    let (dist, _) = world.distances(start);
+    for r in 0..4 {
+        let c = world.nearest_free(scene.room_centre(r)).unwrap();
+        assert!(dist[c].is_finite(), "room {r} unreachable");
+    }
+    assert!(
+        world.views.len() > 500,
+        "{} candidate views",
+        world.views.len()
+    );
+
+    // After one real frame, the footprint's Σ gain(λ, w) equals ObsMap::view_score on the same points.
+    let lut: KernelLut = KernelLut::new(&config).unwrap();
+    let mut map = ObsMap::<2>::new(config).unwrap();
+    let (view, _) = world.views[world.views.len() / 2];
+    let points = world.predicted(view);
+    let half: Vec<[f32; 3]> = points.iter().step_by(2).copied().collect();
+    let feats = vec![[0.5f32, -0.5]; half.len()];
+    map.integrate(&Isometry3::identity(), &half, &feats);
+    let fp = footprint(&lut, &points, 1.0);
+    let fast: f32 = fp.weights.iter().map(|&(k, w)| map.voxel_gain(k, w)).sum();
+    let exact = map.view_score(&points);
+    assert!(
+        (fast - exact).abs() <= 1e-4 * exact,
+        "footprint {fast} vs view_score {exact}"
+    );
+}
+
+#[test]
+fn short_runs_stay_in_budget_and_learn() {
+    let scene = IndoorScene::generate(1);
+    let train = indoor::sequence(
+        &IndoorScene::generate(mix_all(&[1, 0x7EA1])),
+        &IndoorRun {
+            seed: 5,
+            ..IndoorRun::default()
+        },
+    );
+    let config = train.config;
+    let dec = host_sim::eval::experiment::decoding(
+        &Vocabulary::builtin(),
+        &train,
+        &host_sim::eval::experiment::Setup::default(),
+    )
+    .unwrap();
+    let truth = Truth::from_loop(&scene, &config);
+    let world = World::new(scene, &config, 3072).unwrap();
+    for planner in Planner::ALL {
+        let samples = run(
+            &world,
+            &dec,
+            &truth,
+            &config,
+            &Explorer {
+                planner,
+                seed: 1,
+                budget: 5.0,
+                utility_offset: UTILITY_OFFSET_M,
+            },
+        )
+        .unwrap();
+        assert!(
+            samples.len() >= 3,
+            "{}: {} samples",
+            planner.name(),
+            samples.len()
+        );
+        assert!(samples.windows(2).all(|w| w[0].distance <= w[1].distance));
+        let last = samples.last().unwrap();
+        assert!(
+            last.distance <= 5.0 + 1e-3,
+            "{}: {} m",
+            planner.name(),
+            last.distance
+        );
+        assert!(last.accuracy > samples[0].accuracy, "{}", planner.name());
+    }
+}
+
+#[test]
+fn the_mean_curve_holds_the_last_value_within_each_distance() {
+    let s = |distance: f32, accuracy: f64| Sample {
+        distance,
+        accuracy,
+        miou: 0.0,
+        frames: 0,
+    };
+    let runs = vec![
+        vec![s(0.0, 0.1), s(1.0, 0.5), s(3.0, 0.9)],
+        vec![s(0.0, 0.3), s(2.0, 0.7)],
+    ];
+    let c = mean_curve(&runs, &[0.0, 1.0, 2.5, 3.0], |x| x.accuracy);
+    let want = [0.2, 0.4, 0.6, 0.8];
+    for (a, b) in c.iter().zip(want) {
+        assert!((a - b).abs() < 1e-12, "{c:?}");
+    }
+}
