@@ -39,6 +39,8 @@ pub struct DemoLink {
     pub sent_keys: std::collections::HashMap<VoxelKey, f64>,
     /// At the end: the base station's posteriors against the robot's own map.
     pub agreement: Option<Agreement>,
+    /// The live view / recording of the base station, if asked for.
+    viewer: Option<crate::base_station::view::Viewer<D>>,
 }
 
 /// Argmax agreement of the base station's map with the robot's own map.
@@ -74,7 +76,19 @@ impl DemoLink {
             bytes: 0,
             sent_keys: Default::default(),
             agreement: None,
+            viewer: None,
         })))
+    }
+
+    /// Show the base station's map in `viewer` as frames arrive.
+    pub fn attach_viewer(&mut self, viewer: crate::base_station::view::Viewer<D>) {
+        self.base.watch();
+        self.viewer = Some(viewer);
+    }
+
+    /// Stop the viewer (after [`DemoLink::finish`]) and summarise what it sent.
+    pub fn finish_viewer(&mut self) -> Option<crate::base_station::view::ViewerSummary> {
+        self.viewer.take().map(|v| v.finish())
     }
 
     /// One tick of the robot's radio: up to `BUDGET` bytes through the link to the base station.
@@ -90,7 +104,12 @@ impl DemoLink {
         for frame in split_frames(&bytes) {
             self.link.send(frame, &mut received);
         }
+        let arrived = std::time::Instant::now();
         self.base.receive(&received);
+        if let Some(v) = &self.viewer {
+            let changed = self.base.take_watched();
+            v.push(&self.base, changed, arrived);
+        }
     }
 
     /// Drain the robot's queue (end of the run).

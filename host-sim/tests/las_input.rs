@@ -266,9 +266,10 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
         (f32_map - device).abs() < 1.0,
         "f32 {f32_map}, device {device}"
     );
+    // The query word comes from a class the tile has: no building here ("house"), but high vegetation.
     for f in [
         "tile/semantic_map.png",
-        "tile/query_house.png",
+        "tile/query_tree.png",
         "tile/uncertainty_eopt.png",
         "tile/sparsification.png",
         "results.md",
@@ -280,6 +281,13 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
             p.display()
         );
     }
+    // The scale (here the paper's 0.1 m, from the tile's 0.094 m spacing) and where it came from.
+    let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(
+        md.contains("map scale: voxel 0.100 m, ℓ = 0.500 m (from the points' spacing ≈ 0.0935 m"),
+        "{md}"
+    );
+    assert!(md.contains("| bridge deck | "), "{md}");
 }
 
 #[test]
@@ -367,7 +375,10 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
     write_las(&empty, &[], Some(UTM33N));
     let garbage = dir.path().join("garbage.laz");
     std::fs::write(&garbage, b"x y z class\n1 2 3 2\n").unwrap();
-    for (file, why) in [(&empty, "holds no point"), (&garbage, "reading LAS")] {
+    for (file, why) in [
+        (&empty, "holds no point"),
+        (&garbage, "not a LAS or LAZ file"),
+    ] {
         let (ok, _, stderr) = host_sim(&["eval", "--las", file.to_str().unwrap()], &out);
         let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
         assert!(!ok && lines.len() == 1, "{stderr}");

@@ -180,7 +180,7 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
 }
 
 /// The vocabulary (`--pca`, `--classes`) and the query (`--query`) codebooks.
-type Vocab = (Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>);
+pub type Vocab = (Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>);
 
 fn read_vocabulary(args: &OutputArgs) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
     let Some(p) = &args.pca else {
@@ -590,6 +590,13 @@ pub fn print_view_summary(s: &ViewerSummary) {
     println!(
         "viewer: {} voxels in the scene, {} messages, {} bytes",
         s.voxels, s.messages, s.bytes
+    );
+    let secs = s.elapsed.as_secs_f64().max(1e-9);
+    println!(
+        "viewer: stream {:.1} messages/s, {:.0} bytes/s over {:.1} s",
+        s.messages as f64 / secs,
+        s.bytes as f64 / secs,
+        secs
     );
     if !s.latencies.is_empty() {
         let (median, p95) = median_p95(&s.latencies);

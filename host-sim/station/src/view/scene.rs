@@ -399,6 +399,14 @@ impl<const D: usize, const K: usize> Scene<D, K> {
     }
 }
 
+/// A message as it goes on the wire (protobuf).
+pub fn encode(msg: &SceneUpdate) -> Vec<u8> {
+    use foxglove::Encode;
+    let mut buf = Vec::with_capacity(msg.encoded_len().unwrap_or(0));
+    msg.encode(&mut buf).expect("a Vec grows");
+    buf
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
