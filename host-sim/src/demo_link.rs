@@ -12,7 +12,9 @@ use crate::link::{split_frames, ByteLog, Faults, FaultyLink};
 use crate::ObsMap;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec, NO_FEATURE_SPACE};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{
+    frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
+};
 use std::sync::{Arc, Mutex};
 
 const D: usize = 64;
@@ -121,7 +123,7 @@ impl DemoLink {
     /// Compare the base station's map with the robot's own (every voxel either answers, by argmax).
     fn compare(&mut self, robot: &ObsMap<D>, decoder: &Decoder) {
         let Some(base) = self.base.map() else { return };
-        let ours: std::collections::HashMap<VoxelKey, latentbki::VoxelStats<D>> =
+        let ours: std::collections::HashMap<VoxelKey, latentbki::stats::VoxelStats<D>> =
             base.posteriors().into_iter().collect();
         // Voxels whose points did not all arrive (a frame of theirs was lost on the link).
         let damaged: std::collections::HashSet<VoxelKey> = self
@@ -130,10 +132,11 @@ impl DemoLink {
             .filter(|(k, n)| base.observations(k).map_or(0.0, |o| f64::from(o.count)) != **n)
             .map(|(k, _)| *k)
             .collect();
-        let offsets =
-            latentbki::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(robot.config())
-                .map(|l| l.offsets().to_vec())
-                .unwrap_or_default();
+        let offsets = latentbki::kernel::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(
+            robot.config(),
+        )
+        .map(|l| l.offsets().to_vec())
+        .unwrap_or_default();
         let (mut both, mut agree, mut complete, mut agree_complete) = (0usize, 0, 0usize, 0);
         robot.for_each_posterior(|k, r| {
             if let Some(b) = ours.get(&k) {

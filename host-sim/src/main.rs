@@ -125,7 +125,7 @@ impl<const D: usize> IntegrateMap<D> {
         }
     }
     /// Every voxel in reach of an observation, with its posterior, sorted by key.
-    fn posteriors(&self) -> Vec<(latentbki::VoxelKey, latentbki::VoxelStats<D>)> {
+    fn posteriors(&self) -> Vec<(latentbki::key::VoxelKey, latentbki::stats::VoxelStats<D>)> {
         match self {
             Self::Observations(m) => m.posteriors_sorted(),
             Self::Reference(m) => m.sorted().into_iter().map(|(k, s)| (k, *s)).collect(),

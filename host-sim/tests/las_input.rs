@@ -525,7 +525,7 @@ fn integrate_reads_a_laz_with_its_features_beside_it() {
     assert!(expected.len() > 100);
     for (i, k) in map.keys.iter().enumerate() {
         let v = expected
-            .get(&latentbki::VoxelKey::new(k[0], k[1], k[2]))
+            .get(&latentbki::key::VoxelKey::new(k[0], k[1], k[2]))
             .expect("voxel exists");
         // The observation map's gather equals the paper's update to f32 rounding.
         assert!((map.lambda[i] - v.lambda).abs() <= 1e-5 * v.lambda);

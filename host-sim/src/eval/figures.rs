@@ -8,7 +8,7 @@
 use super::experiment::SweepPoint;
 use super::methods::{Decoder, D};
 use super::sparsification::Sparsification;
-use latentbki::{MapConfig, Spread, VoxelKey, VoxelStats};
+use latentbki::{inference::Spread, key::VoxelKey, stats::VoxelStats, MapConfig};
 use plotters::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;

@@ -10,7 +10,7 @@ use foxglove::{
     Context, Encode, McapWriterHandle, RawChannel, Schema, SinkId, WebSocketServerHandle,
 };
 use latentbki::wire::SessionConfig;
-use latentbki::{Codebook, VoxelKey};
+use latentbki::{decode::Codebook, key::VoxelKey};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;

@@ -34,7 +34,7 @@ pub use foxglove;
 pub use live::{Viewer, ViewerSummary};
 pub use scene::{BlockKey, Layer, Scene, VoxelRow};
 
-use latentbki::Codebook;
+use latentbki::decode::Codebook;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 

@@ -15,7 +15,7 @@ use foxglove::messages::{
     scene_entity_deletion, Color, CubePrimitive, KeyValuePair, Pose, Quaternion, SceneEntity,
     SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
 };
-use latentbki::{Codebook, Spread, VoxelKey};
+use latentbki::{decode::Codebook, inference::Spread, key::VoxelKey};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write as _;
 
@@ -411,7 +411,7 @@ pub fn encode(msg: &SceneUpdate) -> Vec<u8> {
 mod tests {
     use super::*;
     use latentbki::wire::{SessionConfig, Summary};
-    use latentbki::{MapConfig, ObsStats, SummaryCodec};
+    use latentbki::{obs::ObsStats, wire::SummaryCodec, MapConfig};
 
     const D: usize = 4;
 
