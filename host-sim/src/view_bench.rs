@@ -11,7 +11,7 @@ use crate::link::SplitMix;
 use anyhow::Result;
 use clap::Args;
 use latentbki::wire::{SessionConfig, SummaryCodec, NO_FEATURE_SPACE};
-use latentbki::{Codebook, MapConfig, ObsStats, VoxelKey};
+use latentbki::{decode::Codebook, key::VoxelKey, obs::ObsStats, MapConfig};
 use std::time::{Duration, Instant};
 
 const D: usize = 64;
