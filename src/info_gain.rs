@@ -63,9 +63,7 @@ pub fn gathered_count<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized
     }
     let mut k_sum = 0.0;
     for (&o, &k) in lut.offsets().iter().zip(lut.weights(0)) {
-        if let Some(obs) = map.observed(target.offset(o)) {
-            k_sum += k * obs.count;
-        }
+        k_sum += k * map.observed_count(target.offset(o));
     }
     Ok(k_sum)
 }

@@ -260,6 +260,13 @@ impl<const D: usize> VoxelStats<D> {
 pub trait ObsLookup<const D: usize> {
     /// The observations of voxel `key`, if any point fell in it (by value: a quantized map decodes them).
     fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>>;
+
+    /// The point count n of voxel `key` (0 if nothing was observed there): all that a gather of counts
+    /// reads ([`crate::info_gain`]). By default through [`Self::observed`]; a map can answer it without
+    /// decoding the features.
+    fn observed_count(&self, key: VoxelKey) -> f32 {
+        self.observed(key).map_or(0.0, |o| o.count)
+    }
 }
 
 /// Why a gather cannot be done.

@@ -12,7 +12,9 @@ use crate::link::{split_frames, ByteLog, Faults, FaultyLink};
 use crate::ObsMap;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec, NO_FEATURE_SPACE};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{
+    frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
+};
 use std::sync::{Arc, Mutex};
 
 const D: usize = 64;
@@ -37,6 +39,8 @@ pub struct DemoLink {
     pub sent_keys: std::collections::HashMap<VoxelKey, f64>,
     /// At the end: the base station's posteriors against the robot's own map.
     pub agreement: Option<Agreement>,
+    /// The live view / recording of the base station, if asked for.
+    viewer: Option<crate::base_station::view::Viewer<D>>,
 }
 
 /// Argmax agreement of the base station's map with the robot's own map.
@@ -72,7 +76,19 @@ impl DemoLink {
             bytes: 0,
             sent_keys: Default::default(),
             agreement: None,
+            viewer: None,
         })))
+    }
+
+    /// Show the base station's map in `viewer` as frames arrive.
+    pub fn attach_viewer(&mut self, viewer: crate::base_station::view::Viewer<D>) {
+        self.base.watch();
+        self.viewer = Some(viewer);
+    }
+
+    /// Stop the viewer (after [`DemoLink::finish`]) and summarise what it sent.
+    pub fn finish_viewer(&mut self) -> Option<crate::base_station::view::ViewerSummary> {
+        self.viewer.take().map(|v| v.finish())
     }
 
     /// One tick of the robot's radio: up to `BUDGET` bytes through the link to the base station.
@@ -88,7 +104,12 @@ impl DemoLink {
         for frame in split_frames(&bytes) {
             self.link.send(frame, &mut received);
         }
+        let arrived = std::time::Instant::now();
         self.base.receive(&received);
+        if let Some(v) = &self.viewer {
+            let changed = self.base.take_watched();
+            v.push(&self.base, changed, arrived);
+        }
     }
 
     /// Drain the robot's queue (end of the run).
@@ -102,7 +123,7 @@ impl DemoLink {
     /// Compare the base station's map with the robot's own (every voxel either answers, by argmax).
     fn compare(&mut self, robot: &ObsMap<D>, decoder: &Decoder) {
         let Some(base) = self.base.map() else { return };
-        let ours: std::collections::HashMap<VoxelKey, latentbki::VoxelStats<D>> =
+        let ours: std::collections::HashMap<VoxelKey, latentbki::stats::VoxelStats<D>> =
             base.posteriors().into_iter().collect();
         // Voxels whose points did not all arrive (a frame of theirs was lost on the link).
         let damaged: std::collections::HashSet<VoxelKey> = self
@@ -111,10 +132,11 @@ impl DemoLink {
             .filter(|(k, n)| base.observations(k).map_or(0.0, |o| f64::from(o.count)) != **n)
             .map(|(k, _)| *k)
             .collect();
-        let offsets =
-            latentbki::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(robot.config())
-                .map(|l| l.offsets().to_vec())
-                .unwrap_or_default();
+        let offsets = latentbki::kernel::KernelLut::<{ latentbki::kernel::MAX_NEIGHBOURS }>::new(
+            robot.config(),
+        )
+        .map(|l| l.offsets().to_vec())
+        .unwrap_or_default();
         let (mut both, mut agree, mut complete, mut agree_complete) = (0usize, 0, 0usize, 0);
         robot.for_each_posterior(|k, r| {
             if let Some(b) = ours.get(&k) {

@@ -42,6 +42,8 @@ enum Command {
     BaseStation(host_sim::base_station::cli::BaseStationArgs),
     /// Measure the headline speed figures on this machine (one core, medians): integrate, gather.
     Bench(host_sim::bench::BenchArgs),
+    /// The live view's cost: the full scene of a 100k-voxel map (build + encode, one layer).
+    ViewBench(host_sim::view_bench::ViewBenchArgs),
     /// Summarise a map database (read-only: works while a base station writes it).
     MapInfo(host_sim::base_station::cli::MapInfoArgs),
     /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
@@ -123,7 +125,7 @@ impl<const D: usize> IntegrateMap<D> {
         }
     }
     /// Every voxel in reach of an observation, with its posterior, sorted by key.
-    fn posteriors(&self) -> Vec<(latentbki::VoxelKey, latentbki::VoxelStats<D>)> {
+    fn posteriors(&self) -> Vec<(latentbki::key::VoxelKey, latentbki::stats::VoxelStats<D>)> {
         match self {
             Self::Observations(m) => m.posteriors_sorted(),
             Self::Reference(m) => m.sorted().into_iter().map(|(k, s)| (k, *s)).collect(),
@@ -269,6 +271,18 @@ fn run() -> Result<()> {
                 1e-4,
                 7,
             )?;
+            if args.view.wanted() {
+                args.view.check()?;
+                let v = host_sim::base_station::view::Viewer::start(
+                    host_sim::base_station::cli::view_options(&args.view, None, None),
+                )?;
+                if let (Some(a), Some(port)) = (args.view.view, v.port()) {
+                    println!("viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)", a.ip());
+                }
+                link.lock()
+                    .map_err(|_| anyhow::anyhow!("link state poisoned"))?
+                    .attach_viewer(v);
+            }
             let sink = host_sim::demo_link::DemoLinkSink(link.clone());
             host_sim::eval::cli::demo(&args, Some(Box::new(sink)))?;
             let mut link = link
@@ -276,10 +290,14 @@ fn run() -> Result<()> {
                 .map_err(|_| anyhow::anyhow!("link state poisoned"))?;
             link.finish();
             println!("{}", link.summary());
+            if let Some(s) = link.finish_viewer() {
+                host_sim::base_station::cli::print_view_summary(&s);
+            }
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
         Command::Bench(args) => host_sim::bench::run(&args),
+        Command::ViewBench(args) => host_sim::view_bench::run(&args),
         Command::Explore(args) => host_sim::explore::explore(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
         #[cfg(feature = "encoder")]

@@ -6,7 +6,7 @@ use host_sim::changing::changed;
 use host_sim::sim::indoor::IndoorScene;
 use host_sim::ObsMap;
 use latentbki::nalgebra::Isometry3;
-use latentbki::{Forgetting, MapConfig, ObsLookup, Stamped, VoxelKey};
+use latentbki::{forget::Forgetting, forget::Stamped, key::VoxelKey, obs::ObsLookup, MapConfig};
 
 fn frame(t: usize) -> (Vec<[f32; 3]>, Vec<[f32; 2]>) {
     let points = (0..50)
@@ -72,6 +72,11 @@ fn forgetting_reads_each_voxel_as_its_decayed_observations() {
         let got = map.observed(*k).unwrap();
         assert!((got.count - want.count).abs() <= 1e-6 * want.count, "{k:?}");
         assert_eq!(got.mean, want.mean);
+        assert_eq!(
+            map.observed_count(*k),
+            got.count,
+            "counts read alone decay alike"
+        );
         for d in 0..2 {
             assert!((got.scatter[d] - want.scatter[d]).abs() <= 1e-5 * want.scatter[d].max(1.0));
         }

@@ -102,7 +102,7 @@ fn queries_and_exports_show_the_scene() {
     };
     let road = host_sim::base_station::export::label_colour(ROAD);
     assert_eq!(px(4.0, 0.05), road, "{:?}", {
-        let k = latentbki::VoxelKey::new(40, 0, 0);
+        let k = latentbki::key::VoxelKey::new(40, 0, 0);
         (
             map.label(&k, &world.vocab),
             map.observations(&k).map(|o| o.count),
@@ -124,7 +124,8 @@ fn queries_and_exports_show_the_scene() {
         3,
     )
     .unwrap();
-    assert_eq!(files.len(), 3);
+    assert_eq!(files.len(), 4);
+    assert!(files[3].ends_with("map-gain.png"));
     for f in &files {
         let back = host_sim::png_io::RgbImage::read_png(f).unwrap();
         assert_eq!(back.width(), img.width() * 3);

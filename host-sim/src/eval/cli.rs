@@ -40,6 +40,9 @@ pub struct DemoArgs {
     /// The map configuration.
     #[command(flatten)]
     pub map: MapArgs,
+    /// Watch the demo's base station live (`--view`) or record it (`--record FILE.mcap`).
+    #[command(flatten)]
+    pub view: crate::base_station::cli::ViewArgs,
 }
 
 /// `eval` options.

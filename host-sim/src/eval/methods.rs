@@ -20,7 +20,8 @@
 use crate::ObsMap;
 use latentbki::local_map::LocalMap;
 use latentbki::{
-    locate, spread, Codebook, KernelLut, MapConfig, ObsLookup, ObsStats, VoxelKey, VoxelStats,
+    batch::locate, batch::spread, decode::Codebook, kernel::KernelLut, key::VoxelKey,
+    obs::ObsLookup, obs::ObsStats, stats::VoxelStats, MapConfig,
 };
 use std::collections::HashMap;
 
@@ -353,8 +354,11 @@ struct Evictions<'a> {
     link: &'a mut Option<Box<dyn VoxelSink>>,
 }
 
-impl latentbki::EvictionSink<D> for Evictions<'_> {
-    fn evict(&mut self, e: latentbki::Evicted<'_, D>) -> Result<(), latentbki::SinkFull> {
+impl latentbki::sink::EvictionSink<D> for Evictions<'_> {
+    fn evict(
+        &mut self,
+        e: latentbki::sink::Evicted<'_, D>,
+    ) -> Result<(), latentbki::sink::SinkFull> {
         if let Some(l) = self.link.as_mut() {
             l.voxel(e.key, e.obs, e.residency);
         }
@@ -413,7 +417,7 @@ impl Mapper for OnDevice {
     }
     fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
         let key = key_of(p, self.map.config())?;
-        let obs = latentbki::gather(self.map.kernel(), self, key).ok()?;
+        let obs = latentbki::obs::gather(self.map.kernel(), self, key).ok()?;
         (!obs.is_empty()).then(|| obs.posterior(&self.map.prior()))
     }
     fn voxels(&self) -> usize {

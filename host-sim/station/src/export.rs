@@ -8,7 +8,7 @@
 
 use super::global_map::GlobalMap;
 pub use crate::png_io::RgbImage;
-use latentbki::{Codebook, VoxelKey, VoxelStats};
+use latentbki::{decode::Codebook, key::VoxelKey, stats::VoxelStats};
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;
@@ -255,8 +255,30 @@ pub fn uncertainty_image<const D: usize>(
     })
 }
 
-/// Write the three views: `<prefix>-labels.png`, `<prefix>-heat.png` (if a query is given),
-/// `<prefix>-uncertainty.png`. Returns the files written.
+/// Top-down information gain: what one more point's worth of kernel weight would teach the topmost voxel
+/// of each column ([`latentbki::info_gain::voxel_gain`] at its λ), normalised over the map — where a robot should look
+/// next.
+pub fn gain_image<const D: usize>(map: &GlobalMap<D>, scale: u32) -> Result<RgbImage, ExportError> {
+    let cols = columns(map);
+    let value = |column: &[(VoxelKey, VoxelStats<D>)]| {
+        column
+            .last()
+            .map(|(_, p)| latentbki::info_gain::voxel_gain(p.lambda, 1.0))
+    };
+    let (lo, hi) = cols
+        .values()
+        .filter_map(|k| value(k))
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    let span = (hi - lo).max(1e-6);
+    paint(&cols, scale, |keys| {
+        value(keys).map(|v| ramp((v - lo) / span))
+    })
+}
+
+/// Write the four views: `<prefix>-labels.png`, `<prefix>-heat.png` (if a query is given),
+/// `<prefix>-uncertainty.png`, `<prefix>-gain.png`. Returns the files written.
 pub fn write_pngs<const D: usize, const K: usize>(
     map: &GlobalMap<D>,
     vocab: &Codebook<D, K>,
@@ -280,6 +302,9 @@ pub fn write_pngs<const D: usize, const K: usize>(
     }
     let p = name("-uncertainty.png");
     save_png(&uncertainty_image(map, scale)?, &p)?;
+    written.push(p);
+    let p = name("-gain.png");
+    save_png(&gain_image(map, scale)?, &p)?;
     written.push(p);
     Ok(written)
 }

@@ -29,8 +29,8 @@ pub use global_map::{
 pub use obs_map::ObsMap;
 
 use latentbki::frame::{DecoderStats, Feed, FrameDecoder, SeqTracker, SeqVerdict};
+use latentbki::key::VoxelKey;
 use latentbki::wire::{parse_body, LinkStats, Message, SessionConfig, Summary, WireError};
-use latentbki::VoxelKey;
 use std::collections::{BTreeMap, HashSet};
 use store::{Changes, MapStore, Snapshot, StoreError};
 

@@ -9,8 +9,9 @@ use latentbki::frame::EncoderSettings;
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{feature_space_id, SessionConfig, SummaryCodec};
 use latentbki::{
-    packed_len, Codebook, Evicted, EvictionSink, FrameEncoder, LocalMap, MapConfig, ObsStats, Pca,
-    SinkFull, VoxelKey, VoxelStats,
+    decode::Codebook, decode::Pca, frame::FrameEncoder, key::VoxelKey, local_map::LocalMap,
+    obs::ObsStats, packed_len, sink::Evicted, sink::EvictionSink, sink::SinkFull,
+    stats::VoxelStats, MapConfig,
 };
 
 pub const D: usize = 64;
