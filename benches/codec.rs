@@ -3,7 +3,7 @@
 //! Run: `cargo bench -p latentbki --bench codec`.
 use criterion::{criterion_group, criterion_main, Criterion};
 use latentbki::quant::{Dither, QuantVoxel};
-use latentbki::{packed_len, ObsStats};
+use latentbki::{obs::ObsStats, packed_len};
 use std::hint::black_box;
 
 const D: usize = 64;

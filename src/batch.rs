@@ -6,7 +6,7 @@
 //!    kernel weights to every neighbour, so they are grouped.
 //! 2. Either spread each group to the neighbours in the kernel table — target voxel t receives the group
 //!    scaled by k(s → t): the host's reference map does this with Welford moments
-//!    ([`crate::VoxelStats::absorb_point`]) and [`spread`], the paper's update taken literally — or keep
+//!    ([`crate::stats::VoxelStats::absorb_point`]) and [`spread`], the paper's update taken literally — or keep
 //!    each voxel's own observation statistics and gather them through the kernel when a posterior is asked
 //!    ([`crate::obs`]: the on-device map and the host's fast map). Both are exactly the paper's per-point
 //!    batch sums (Chan's combination; the equivalence tests check it).

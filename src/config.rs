@@ -17,6 +17,15 @@ pub const MAX_SUBVOXEL_CELLS: u8 = 8;
 ///
 /// The defaults (λ₀ = 0, μ₀ = 0, Ψ₀ = 1) are those of the authors' released code: a non-informative
 /// confidence, so the posterior mean is the kernel-weighted average of the observations.
+///
+/// ```
+/// use latentbki::{KernelMode, MapConfig, Prior};
+///
+/// // A confident prior: 2 pseudo-points of mean 0 and scatter 0.5 in every dimension.
+/// let prior = Prior { lambda: 2.0, mean: 0.0, psi: 0.5 };
+/// let config = MapConfig::new(0.1, 0.5, 3, prior, KernelMode::VoxelOffset).unwrap();
+/// assert_eq!(config.prior(), prior);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Prior {
@@ -70,6 +79,18 @@ impl KernelMode {
 }
 
 /// A complete, validated map configuration. Construct with [`MapConfig::new`] or [`MapConfig::default`].
+///
+/// ```
+/// use latentbki::{KernelMode, MapConfig, Prior};
+///
+/// // 5 cm voxels, kernel length 0.3 m, a 3³ filter: validated when the constant is built.
+/// const FINE: MapConfig = match MapConfig::new(0.05, 0.3, 3, Prior::DEFAULT, KernelMode::VoxelOffset) {
+///     Ok(c) => c,
+///     Err(_) => panic!("invalid map configuration"),
+/// };
+/// assert_eq!((FINE.voxel_size(), FINE.filter_size()), (0.05, 3));
+/// assert!(MapConfig::new(0.05, 0.3, 4, Prior::DEFAULT, KernelMode::VoxelOffset).is_err()); // f is odd
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MapConfig {

@@ -99,6 +99,19 @@ pub struct Category<const D: usize> {
 }
 
 /// Text embeddings of up to `K` categories, ready to score D-dimensional voxel means.
+///
+/// ```
+/// use latentbki::decode::{Codebook, Pca};
+///
+/// // A PCA 3 → 2 (orthonormal rows) and the 3-d text embeddings of two words.
+/// let pca = Pca { mean: [0.0; 3], components: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] };
+/// let words: Codebook<2, 8> = Codebook::from_pca(&pca, &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.2]]).unwrap();
+///
+/// // A voxel's posterior mean, in the compressed space: closest to the second word.
+/// let (best, score) = words.argmax(&[0.1, 0.9]).unwrap();
+/// assert_eq!(best, 1);
+/// assert!(score > 0.9);
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Codebook<const D: usize, const K: usize> {
     categories: heapless::Vec<Category<D>, K>,

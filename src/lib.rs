@@ -12,7 +12,8 @@
 //!
 //! ## A robot in ten lines
 //!
-//! [`Mapper`] is the entry point on a robot: it owns the on-device [`LocalMap`] and the [`FrameEncoder`]
+//! [`Mapper`] is the entry point on a robot: it owns the on-device [`local_map::LocalMap`] and the
+//! [`frame::FrameEncoder`]
 //! that streams evicted voxels to a base station, is configured once from a `const` [`Setup`] and lives in
 //! a `static` (it is all zero until configured, so it costs no flash). Per sensor frame: the pose, the
 //! points and their features in, then a byte-budgeted [`Mapper::tick`] into any [`embedded_io::Write`]
@@ -98,39 +99,13 @@ pub mod sink;
 pub mod stats;
 pub mod wire;
 
-// ----- on the robot
-pub use frame::{EncoderSettings, FrameEncoder, TickError, TickReport};
-pub use local_map::LocalMap;
+// ----- The front door: what a firmware author names. Everything else lives in the module that owns it
+// (`key::VoxelKey`, `local_map::LocalMap`, `frame::FrameDecoder`, `decode::Codebook` …).
+pub use batch::RejectionCounts;
+pub use config::{ConfigError, KernelMode, MapConfig, Prior};
+pub use frame::{EncoderSettings, TickError, TickReport};
 pub use mapper::{DrainError, Mapper, SensorFrame, Setup, SetupError};
 pub use quant::packed_len;
-
-// ----- configuration
-pub use config::{ConfigError, KernelMode, MapConfig, Prior};
-
-// ----- voxels, points and what the map does with them
-pub use batch::{Rejection, RejectionCounts};
-pub use key::{to_map_frame, VoxelKey};
-pub use sink::{Evicted, EvictionSink, SinkFull};
-
-// ----- statistics and posteriors (the base station and the simulator share them with the device)
-// (`locate` and `spread` are the building blocks of host-side maps: the simulator's methods use them.)
-pub use batch::{locate, spread};
-pub use forget::{Forgetting, Stamped};
-pub use kernel::KernelLut;
-pub use obs::{gather, gather_posterior, GatherError, ObsLookup, ObsStats};
-pub use stats::VoxelStats;
-
-// ----- uncertainty
-pub use inference::{Optimality, Spread};
-pub use info_gain::{view_score, voxel_gain, ScoreError};
-pub use sampling::{Sampler, SamplingMode};
-
-// ----- the base station's side of the link
-pub use frame::{FrameDecoder, SeqTracker};
-pub use wire::{SessionConfig, SummaryCodec};
-
-// ----- open-vocabulary queries
-pub use decode::{Codebook, CodebookError, Pca};
 
 /// `docs/firmware.md` (the firmware author's guide), compiled so its examples run as doc tests.
 #[cfg(doctest)]
@@ -139,5 +114,3 @@ pub struct FirmwareGuide;
 
 /// Re-exported so users build poses with the same nalgebra the library uses.
 pub use nalgebra;
-/// Re-exported: the PRNG the library's tests and the host's simulations use.
-pub use rand_xoshiro;

@@ -33,6 +33,14 @@ use tap::Tapped;
 pub use tap::{EvictionTap, NoTap};
 
 /// Everything a [`Mapper`] is configured with; `const`-constructible, so a firmware keeps it in a `static`.
+///
+/// ```
+/// use latentbki::{EncoderSettings, MapConfig, Setup};
+///
+/// // Robot 3, session 12 (a boot counter); voxels within 2 m of the sensor stay on the device.
+/// static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(3, 12));
+/// assert_eq!((SETUP.link.robot, SETUP.window_radius), (3, 2.0));
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Setup {
     /// Voxel size, kernel, prior.
@@ -114,6 +122,26 @@ impl<E> From<TickError<E>> for DrainError<E> {
 /// and frames of at most `N` bytes. `P` is [`crate::quant::packed_len`]`(D)` (checked at compile time).
 ///
 /// Large (≈ `CAP` × [`LocalMap::BYTES_PER_VOXEL`] + `QB` + 2 `N` bytes): place it in a `static`.
+///
+/// ```
+/// use latentbki::nalgebra::Isometry3;
+/// use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
+/// use static_cell::ConstStaticCell;
+///
+/// // D = 16 features, 256 voxels, a 1 KiB queue of evicted voxels, frames of at most 256 bytes.
+/// type Robot = Mapper<16, 256, { packed_len(16) }, 1024, 256>;
+/// static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
+///
+/// let mapper = MAPPER.take();
+/// mapper.configure(&Setup::new(MapConfig::DEFAULT, 1.0, EncoderSettings::new(1, 1))).unwrap();
+/// let taken = mapper.integrate(&Isometry3::identity(), &[[0.5, 0.0, 0.0]], &[[0.25; 16]]);
+/// assert_eq!((taken, mapper.map().len()), (1, 1));
+///
+/// let mut link = [0u8; 2048];
+/// let mut uart: &mut [u8] = &mut link; // any embedded_io::Write
+/// mapper.drain(&mut uart).unwrap(); // the session header, the voxel, link statistics
+/// assert_eq!(mapper.map().len(), 0);
+/// ```
 pub struct Mapper<
     const D: usize,
     const CAP: usize,
@@ -377,6 +405,22 @@ impl<
 
 /// A sensor frame being added to a [`Mapper`]: every point goes through the frame's pose (and every
 /// voxel it hands to the link through the tap `T`, if any).
+///
+/// ```
+/// # use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
+/// # use static_cell::ConstStaticCell;
+/// # type Robot = Mapper<16, 256, { packed_len(16) }, 1024, 256>;
+/// # static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
+/// # let mapper = MAPPER.take();
+/// # mapper.configure(&Setup::new(MapConfig::DEFAULT, 1.0, EncoderSettings::new(1, 1))).unwrap();
+/// // A scanning sensor: one pose per revolution, the beams as they arrive.
+/// let mut frame = mapper.begin_frame(&latentbki::nalgebra::Isometry3::identity());
+/// for beam in 0..8 {
+///     frame.add_point([0.6, 0.05 * beam as f32, 0.0], &[0.5; 16]).unwrap();
+/// }
+/// drop(frame);
+/// assert_eq!(mapper.map().rejections().total(), 0);
+/// ```
 pub struct SensorFrame<
     'm,
     const D: usize,

@@ -1,7 +1,7 @@
 //! Decoding in the compressed 64-d space equals the naive decode (back-project to full dimension, cosine).
 
 use latentbki::decode::CodebookError;
-use latentbki::{Codebook, Pca};
+use latentbki::{decode::Codebook, decode::Pca};
 use proptest::prelude::*;
 use proptest::test_runner::TestRng;
 

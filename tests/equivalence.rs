@@ -5,7 +5,7 @@
 //! quantity (max |y| for μ, Σ k·y² for Ψ). A pure relative bound is meaningless where an exact result is 0
 //! by cancellation, so the input magnitude anchors it.
 
-use latentbki::{ObsStats, Prior, VoxelStats};
+use latentbki::{obs::ObsStats, stats::VoxelStats, Prior};
 use proptest::prelude::*;
 
 const D: usize = 16;

@@ -6,8 +6,8 @@ use latentbki::frame::{Feed, FrameDecoder};
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{parse_body, Message, Summary};
 use latentbki::{
-    packed_len, EncoderSettings, Evicted, LocalMap, MapConfig, Mapper, ObsStats, Rejection,
-    SessionConfig, Setup, SinkFull, VoxelKey,
+    batch::Rejection, key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted,
+    sink::SinkFull, wire::SessionConfig, EncoderSettings, MapConfig, Mapper, Setup,
 };
 
 const D: usize = 16;
@@ -39,7 +39,7 @@ fn points(n: usize, voxels: u32) -> (Vec<[f32; 3]>, Vec<[i8; D]>) {
 
 #[derive(Default)]
 struct Collect(Vec<(VoxelKey, ObsStats<D>)>);
-impl latentbki::EvictionSink<D> for Collect {
+impl latentbki::sink::EvictionSink<D> for Collect {
     fn evict(&mut self, v: Evicted<'_, D>) -> Result<(), SinkFull> {
         self.0.push((v.key, *v.obs));
         Ok(())

@@ -4,7 +4,8 @@
 
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::{
-    packed_len, Evicted, LocalMap, MapConfig, ObsStats, SinkFull, VoxelKey, VoxelStats,
+    key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted, sink::SinkFull,
+    stats::VoxelStats, MapConfig,
 };
 use std::collections::HashMap;
 
@@ -57,7 +58,7 @@ struct Collect {
     refuse: bool,
 }
 
-impl latentbki::EvictionSink<D> for Collect {
+impl latentbki::sink::EvictionSink<D> for Collect {
     fn evict(&mut self, v: Evicted<'_, D>) -> Result<(), SinkFull> {
         if self.refuse {
             return Err(SinkFull);
@@ -252,7 +253,8 @@ fn posteriors_gather_through_the_kernel() {
         3000
     );
     assert!(sink.voxels.is_empty());
-    let lut: latentbki::KernelLut = latentbki::KernelLut::new(&MapConfig::default()).unwrap();
+    let lut: latentbki::kernel::KernelLut =
+        latentbki::kernel::KernelLut::new(&MapConfig::default()).unwrap();
     // f32 statistics of the same points, per voxel.
     let mut exact: HashMap<VoxelKey, ObsStats<D>> = HashMap::new();
     for (q, y) in p.iter().zip(&f) {
@@ -260,7 +262,7 @@ fn posteriors_gather_through_the_kernel() {
         exact.entry(k).or_default().add_point(y);
     }
     struct Exact<'a>(&'a HashMap<VoxelKey, ObsStats<D>>);
-    impl latentbki::ObsLookup<D> for Exact<'_> {
+    impl latentbki::obs::ObsLookup<D> for Exact<'_> {
         fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
             self.0.get(&key).copied()
         }
@@ -272,7 +274,7 @@ fn posteriors_gather_through_the_kernel() {
         for o in lut.offsets() {
             let t = v.key.offset(*o);
             let got: VoxelStats<D> = map.posterior(t);
-            let want = latentbki::gather_posterior(&lut, &Exact(&exact), &prior, t).unwrap();
+            let want = latentbki::obs::gather_posterior(&lut, &Exact(&exact), &prior, t).unwrap();
             assert!((got.lambda - want.lambda).abs() <= 1e-5 * want.lambda);
             let norm = want.mean.iter().map(|m| m * m).sum::<f32>().sqrt();
             let err = got

@@ -6,7 +6,7 @@
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::Isometry3;
-use latentbki::{packed_len, Evicted, LocalMap, MapConfig, SinkFull};
+use latentbki::{local_map::LocalMap, packed_len, sink::Evicted, sink::SinkFull, MapConfig};
 
 const D: usize = host_sim::bench::D;
 const P: usize = packed_len(D);

@@ -5,7 +5,7 @@
 //! Run: `cargo bench -p host-sim --bench uncertainty` (`host-sim bench` prints the same figures, one run).
 use criterion::{criterion_group, criterion_main, Criterion};
 use latentbki::sampling::AUTHORS_DRAWS;
-use latentbki::{Sampler, SamplingMode, Spread};
+use latentbki::{inference::Spread, sampling::Sampler, sampling::SamplingMode};
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -1,4 +1,4 @@
-//! The information-gain score of one candidate view (`latentbki::view_score` through `ObsMap::view_score`),
+//! The information-gain score of one candidate view (`latentbki::info_gain::view_score` through `ObsMap::view_score`),
 //! on the house of `host-sim explore`: a 12 × 9-ray predicted view scored against a map of the first 20
 //! frames of the scripted loop (D = 64). Also the explorer's fast path: Σ gain(λ, w) over the view's
 //! precomputed kernel footprint, λ gathered per voxel.
@@ -8,7 +8,7 @@ use host_sim::explore::world::{footprint, World};
 use host_sim::sim::indoor::{self, IndoorRun, IndoorScene};
 use host_sim::ObsMap;
 use latentbki::nalgebra::Isometry3;
-use latentbki::{voxel_gain, KernelLut};
+use latentbki::{info_gain::voxel_gain, kernel::KernelLut};
 use std::hint::black_box;
 
 const D: usize = 64;

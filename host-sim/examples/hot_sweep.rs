@@ -7,7 +7,10 @@
 //! in `H` and prints how many voxels cooled per 1,000 points, and the hot tier's size. Deterministic: counts, not timings.
 //! Run: `cargo run --release -p host-sim --example hot_sweep`.
 
-use latentbki::{packed_len, to_map_frame, Evicted, LocalMap, ObsStats, SinkFull};
+use latentbki::{
+    key::to_map_frame, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted,
+    sink::SinkFull,
+};
 use latentbki_selftest::SELF_TEST;
 
 const D: usize = 64;

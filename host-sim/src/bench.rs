@@ -12,10 +12,13 @@ use crate::sim::tile::Tile;
 use crate::{ObsMap, ReferenceMap};
 use anyhow::Result;
 use latentbki::nalgebra::Isometry3;
-use latentbki::rand_xoshiro::rand_core::{RngCore, SeedableRng};
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
 use latentbki::sampling::AUTHORS_DRAWS;
-use latentbki::{Codebook, MapConfig, Sampler, SamplingMode, Spread, VoxelStats};
+use latentbki::{
+    decode::Codebook, inference::Spread, sampling::Sampler, sampling::SamplingMode,
+    stats::VoxelStats, MapConfig,
+};
+use rand_xoshiro::rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::time::{Duration, Instant};
 
 /// Feature dimension of the benchmarks.

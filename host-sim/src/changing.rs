@@ -22,10 +22,10 @@ use crate::sim::vocab::Vocabulary;
 use crate::sim::{mix_all, Sequence};
 use crate::ObsMap;
 use anyhow::{ensure, Result};
+use latentbki::forget::Forgetting;
 use latentbki::nalgebra::Isometry3;
-use latentbki::rand_xoshiro::rand_core::SeedableRng;
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
-use latentbki::Forgetting;
+use rand_xoshiro::rand_core::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
 
 /// Loops of the house before the change: a map with a history.
 const LOOPS_BEFORE: usize = 3;

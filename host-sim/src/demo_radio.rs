@@ -14,7 +14,7 @@ use crate::ObsMap;
 use clap::Args;
 use latentbki::frame::Resend;
 use latentbki::wire::SessionConfig;
-use latentbki::{Evicted, Setup, VoxelKey, VoxelStats};
+use latentbki::{key::VoxelKey, sink::Evicted, stats::VoxelStats, Setup};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -123,6 +123,8 @@ pub struct DemoRadio {
     reference: Option<(f64, f64, usize)>,
     /// The same for the robot's own map (what no link can improve on).
     robot_reference: Option<(f64, f64, usize)>,
+    /// The live view / recording of the base station, if asked for.
+    viewer: Option<crate::base_station::view::Viewer<D>>,
 }
 
 impl DemoRadio {
@@ -145,14 +147,31 @@ impl DemoRadio {
             decoder: None,
             reference: None,
             robot_reference: None,
+            viewer: None,
         })))
+    }
+
+    /// Show the base station's map in `viewer` as frames arrive.
+    pub fn attach_viewer(&mut self, viewer: crate::base_station::view::Viewer<D>) {
+        self.base.watch();
+        self.viewer = Some(viewer);
+    }
+
+    /// Stop the viewer (at the end of the run) and summarise what it sent.
+    pub fn finish_viewer(&mut self) -> Option<crate::base_station::view::ViewerSummary> {
+        self.viewer.take().map(|v| v.finish())
     }
 
     /// Deliver what the air carries this tick, both ways, and move its clocks.
     fn carry(&mut self, robot: &mut DeviceRobot) {
         let _ = self.up.advance(TICK_MS);
         let arrived = std::mem::take(&mut self.up.inner().0);
+        let arrived_at = std::time::Instant::now();
         self.base.receive(&arrived);
+        if let Some(v) = &self.viewer {
+            let changed = self.base.take_watched();
+            v.push(&self.base, changed, arrived_at);
+        }
         let acks = self.base.take_acks();
         if !self.args.no_back_channel {
             use embedded_io::Write;

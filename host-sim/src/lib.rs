@@ -16,6 +16,7 @@ pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]
 pub mod text_encoder;
+pub mod view_bench;
 
 pub use latentbki_station::{obs_map, png_io, ObsMap};
 pub use reference_map::ReferenceMap;

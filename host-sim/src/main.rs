@@ -42,6 +42,8 @@ enum Command {
     BaseStation(host_sim::base_station::cli::BaseStationArgs),
     /// Measure the headline speed figures on this machine (one core, medians): integrate, gather.
     Bench(host_sim::bench::BenchArgs),
+    /// The live view's cost: the full scene of a 100k-voxel map (build + encode, one layer).
+    ViewBench(host_sim::view_bench::ViewBenchArgs),
     /// Summarise a map database (read-only: works while a base station writes it).
     MapInfo(host_sim::base_station::cli::MapInfoArgs),
     /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
@@ -123,7 +125,7 @@ impl<const D: usize> IntegrateMap<D> {
         }
     }
     /// Every voxel in reach of an observation, with its posterior, sorted by key.
-    fn posteriors(&self) -> Vec<(latentbki::VoxelKey, latentbki::VoxelStats<D>)> {
+    fn posteriors(&self) -> Vec<(latentbki::key::VoxelKey, latentbki::stats::VoxelStats<D>)> {
         match self {
             Self::Observations(m) => m.posteriors_sorted(),
             Self::Reference(m) => m.sorted().into_iter().map(|(k, s)| (k, *s)).collect(),
@@ -270,6 +272,19 @@ fn run() -> Result<()> {
                 latentbki::wire::NO_FEATURE_SPACE,
             );
             let radio = host_sim::demo_radio::DemoRadio::new(session, &args.link)?;
+            if args.view.wanted() {
+                args.view.check()?;
+                let v = host_sim::base_station::view::Viewer::start(
+                    host_sim::base_station::cli::view_options(&args.view, None, None),
+                )?;
+                if let (Some(a), Some(port)) = (args.view.view, v.port()) {
+                    println!("viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)", a.ip());
+                }
+                radio
+                    .lock()
+                    .map_err(|_| anyhow::anyhow!("link state poisoned"))?
+                    .attach_viewer(v);
+            }
             let link = host_sim::demo_radio::DemoRadioLink(radio.clone());
             let report = host_sim::eval::cli::demo(&args, Some(Box::new(link)))?;
             let mut radio = radio
@@ -285,10 +300,14 @@ fn run() -> Result<()> {
                 radio.compare_reference(&r.mapper.snapshot());
             }
             println!("{}", radio.summary());
+            if let Some(s) = radio.finish_viewer() {
+                host_sim::base_station::cli::print_view_summary(&s);
+            }
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
         Command::Bench(args) => host_sim::bench::run(&args),
+        Command::ViewBench(args) => host_sim::view_bench::run(&args),
         Command::Explore(args) => host_sim::explore::explore(&args),
         Command::Query(args) => host_sim::eval::cli::query(&args),
         #[cfg(feature = "encoder")]

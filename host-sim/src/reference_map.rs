@@ -8,8 +8,8 @@
 
 use latentbki::nalgebra::Isometry3;
 use latentbki::{
-    locate, spread, to_map_frame, ConfigError, KernelLut, MapConfig, RejectionCounts, VoxelKey,
-    VoxelStats,
+    batch::locate, batch::spread, kernel::KernelLut, key::to_map_frame, key::VoxelKey,
+    stats::VoxelStats, ConfigError, MapConfig, RejectionCounts,
 };
 use std::collections::{BTreeMap, HashMap};
 

@@ -22,7 +22,10 @@ use host_sim::eval::scenes::{Scene, SceneOptions, SceneSource};
 use host_sim::reference_map::HOST_LUT_CAP;
 use host_sim::sim::vocab::Vocabulary;
 use host_sim::ReferenceMap;
-use latentbki::{locate, spread, to_map_frame, KernelLut, VoxelKey, VoxelStats};
+use latentbki::{
+    batch::locate, batch::spread, kernel::KernelLut, key::to_map_frame, key::VoxelKey,
+    stats::VoxelStats,
+};
 use std::collections::{BTreeMap, HashMap};
 
 const EPS: f32 = 1e-6;

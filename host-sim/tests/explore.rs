@@ -7,8 +7,8 @@ use host_sim::sim::indoor::{self, IndoorRun, IndoorScene};
 use host_sim::sim::mix_all;
 use host_sim::sim::vocab::Vocabulary;
 use host_sim::ObsMap;
+use latentbki::kernel::KernelLut;
 use latentbki::nalgebra::Isometry3;
-use latentbki::KernelLut;
 
 #[test]
 fn every_room_is_reachable_and_the_fast_score_is_the_maps() {

@@ -15,10 +15,10 @@
 
 use latentbki::frame::FrameDecoder;
 use latentbki::key::{to_map_frame, VoxelKey};
+use latentbki::obs::ObsStats;
 use latentbki::quant::packed_len;
 use latentbki::wire::{parse_body, Message, SessionConfig};
 use latentbki::Mapper;
-use latentbki::ObsStats;
 use latentbki_selftest::{
     self as selftest, CategoryVectors, Chunk, Scenario, CATEGORIES, SELF_TEST, SELF_TEST_CAPACITY,
     SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,

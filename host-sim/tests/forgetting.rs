@@ -6,7 +6,7 @@ use host_sim::changing::changed;
 use host_sim::sim::indoor::IndoorScene;
 use host_sim::ObsMap;
 use latentbki::nalgebra::Isometry3;
-use latentbki::{Forgetting, MapConfig, ObsLookup, Stamped, VoxelKey};
+use latentbki::{forget::Forgetting, forget::Stamped, key::VoxelKey, obs::ObsLookup, MapConfig};
 
 fn frame(t: usize) -> (Vec<[f32; 3]>, Vec<[f32; 2]>) {
     let points = (0..50)

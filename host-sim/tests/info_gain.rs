@@ -4,7 +4,7 @@
 use host_sim::obs_map::view_hits;
 use host_sim::ObsMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup, VoxelKey};
+use latentbki::{key::VoxelKey, packed_len, EncoderSettings, MapConfig, Mapper, Setup};
 
 const D: usize = 8;
 type Robot = Mapper<D, 4096, { packed_len(D) }, 4096, 512>;

@@ -3,7 +3,7 @@
 use host_sim::npy_io::{read_map_npz, write_frame, write_npy};
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::{MapConfig, VoxelKey};
+use latentbki::{key::VoxelKey, MapConfig};
 use std::process::Command;
 
 const D: usize = 8;

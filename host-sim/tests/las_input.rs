@@ -266,9 +266,10 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
         (f32_map - device).abs() < 1.0,
         "f32 {f32_map}, device {device}"
     );
+    // The query word comes from a class the tile has: no building here ("house"), but high vegetation.
     for f in [
         "tile/semantic_map.png",
-        "tile/query_house.png",
+        "tile/query_tree.png",
         "tile/uncertainty_eopt.png",
         "tile/sparsification.png",
         "results.md",
@@ -280,6 +281,13 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
             p.display()
         );
     }
+    // The scale (here the paper's 0.1 m, from the tile's 0.094 m spacing) and where it came from.
+    let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(
+        md.contains("map scale: voxel 0.100 m, ℓ = 0.500 m (from the points' spacing ≈ 0.0935 m"),
+        "{md}"
+    );
+    assert!(md.contains("| bridge deck | "), "{md}");
 }
 
 #[test]
@@ -367,7 +375,10 @@ fn a_run_that_sees_too_little_says_what_to_change_in_one_line() {
     write_las(&empty, &[], Some(UTM33N));
     let garbage = dir.path().join("garbage.laz");
     std::fs::write(&garbage, b"x y z class\n1 2 3 2\n").unwrap();
-    for (file, why) in [(&empty, "holds no point"), (&garbage, "reading LAS")] {
+    for (file, why) in [
+        (&empty, "holds no point"),
+        (&garbage, "not a LAS or LAZ file"),
+    ] {
         let (ok, _, stderr) = host_sim(&["eval", "--las", file.to_str().unwrap()], &out);
         let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
         assert!(!ok && lines.len() == 1, "{stderr}");
@@ -514,7 +525,7 @@ fn integrate_reads_a_laz_with_its_features_beside_it() {
     assert!(expected.len() > 100);
     for (i, k) in map.keys.iter().enumerate() {
         let v = expected
-            .get(&latentbki::VoxelKey::new(k[0], k[1], k[2]))
+            .get(&latentbki::key::VoxelKey::new(k[0], k[1], k[2]))
             .expect("voxel exists");
         // The observation map's gather equals the paper's update to f32 rounding.
         assert!((map.lambda[i] - v.lambda).abs() <= 1e-5 * v.lambda);
@@ -557,4 +568,116 @@ fn integrate_reads_a_laz_with_its_features_beside_it() {
         out.as_os_str(),
     ]);
     assert!(!ok && err.contains("not both"), "{err}");
+}
+
+/// Every LAS version and point format the `las` crate writes, each CRS form, a header whose bounds are
+/// wrong, a stray point, a single class without ground: each loads with the scale and units expected, and
+/// eval runs to `results.md` on one of them (small, fast).
+#[test]
+fn every_version_format_and_crs_form_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let grid = |n: usize, code: u8| -> Vec<(f64, f64, f64, u8)> {
+        (0..n)
+            .map(|i| {
+                let (x, y) = ((i % 40) as f64 * 0.5, (i / 40) as f64 * 0.5);
+                (326_400.0 + x, 6_724_100.0 + y, 10.0 + 0.1 * x, code)
+            })
+            .collect()
+    };
+    for (minor, format) in [
+        (0, 0),
+        (1, 1),
+        (2, 2),
+        (2, 3),
+        (3, 4),
+        (3, 5),
+        (4, 6),
+        (4, 7),
+        (4, 8),
+        (4, 9),
+        (4, 10),
+    ] {
+        let path = dir.path().join(format!("v1{minor}_f{format}.las"));
+        let mut b = las::Builder::from((1, minor));
+        b.point_format = las::point::Format::new(format).unwrap();
+        b.transforms = las::Vector {
+            x: las::Transform {
+                scale: 0.01,
+                offset: 326_000.0,
+            },
+            y: las::Transform {
+                scale: 0.01,
+                offset: 6_724_000.0,
+            },
+            z: las::Transform {
+                scale: 0.01,
+                offset: 0.0,
+            },
+        };
+        let mut w = las::Writer::from_path(&path, b.into_header().unwrap()).unwrap();
+        let fmt = las::point::Format::new(format).unwrap();
+        for (x, y, z, c) in grid(800, 2) {
+            let mut p = las::Point {
+                x,
+                y,
+                z,
+                classification: las::point::Classification::new(c).unwrap(),
+                return_number: 1,
+                number_of_returns: 1,
+                ..Default::default()
+            };
+            if fmt.has_gps_time {
+                p.gps_time = Some(0.0);
+            }
+            if fmt.has_color {
+                p.color = Some(las::Color::new(1, 2, 3));
+            }
+            if fmt.has_nir {
+                p.nir = Some(4);
+            }
+            if fmt.has_waveform {
+                p.waveform = Some(Default::default());
+            }
+            w.write_point(p).unwrap();
+        }
+        w.close().unwrap();
+        let t = Tile::from_path(&path, None)
+            .unwrap_or_else(|e| panic!("1.{minor} format {format}: {e}"));
+        assert_eq!(t.points.len(), 800, "1.{minor} format {format}");
+        assert!((t.spacing - 0.5).abs() < 0.05, "{}", t.spacing);
+        assert_eq!(t.names, ["ground"]);
+    }
+    // EPSG:32632 by WKT code only (no UNIT), a stray point 5 km off (the header's bounds include it),
+    // one class and no ground: eval runs and states the scale.
+    let mut points = grid(1600, 5);
+    points.push((321_400.0, 6_724_100.0, 10.0, 5));
+    let path = dir.path().join("utm32.las");
+    write_las(
+        &path,
+        &points,
+        Some(r#"PROJCS["WGS 84 / UTM zone 32N",AUTHORITY["EPSG","32632"]]"#),
+    );
+    let t = Tile::from_path(&path, None).unwrap();
+    assert_eq!(t.units.source, "from the WKT's EPSG:32632");
+    assert_eq!(t.points.len(), 1600);
+    assert!(t.notes.iter().any(|n| n.contains("stray")), "{:?}", t.notes);
+    let out = dir.path().join("out");
+    let (ok, stdout, stderr) = host_sim(
+        &[
+            "eval",
+            "--las",
+            path.to_str().unwrap(),
+            "--frames",
+            "6",
+            "--points",
+            "400",
+            "--no-sweep",
+        ],
+        &out,
+    );
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stdout.contains("map scale: voxel 0.500 m"), "{stdout}");
+    let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(md.contains("| high vegetation | "), "{md}");
+    assert!(out.join("tile/query_tree.png").exists());
 }

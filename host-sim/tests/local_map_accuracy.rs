@@ -11,9 +11,12 @@
 use host_sim::sim::tile::Tile;
 use host_sim::ObsMap;
 use latentbki::nalgebra::Isometry3;
-use latentbki::rand_xoshiro::rand_core::{RngCore, SeedableRng};
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
-use latentbki::{packed_len, Codebook, Evicted, LocalMap, MapConfig, ObsStats, SinkFull, VoxelKey};
+use latentbki::{
+    decode::Codebook, key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted,
+    sink::SinkFull, MapConfig,
+};
+use rand_xoshiro::rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::HashMap;
 
 const D: usize = 64;
@@ -41,7 +44,7 @@ struct Merge<'a> {
     merged: &'a mut HashMap<VoxelKey, ObsStats<D>>,
 }
 
-impl latentbki::EvictionSink<D> for Merge<'_> {
+impl latentbki::sink::EvictionSink<D> for Merge<'_> {
     fn evict(&mut self, v: Evicted<'_, D>) -> Result<(), SinkFull> {
         self.merged
             .entry(v.key)

@@ -5,7 +5,7 @@
 use host_sim::eval::scenes::{Scene, SceneOptions, SceneSource};
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::{KernelMode, MapConfig, ObsLookup, Prior, VoxelStats};
+use latentbki::{obs::ObsLookup, stats::VoxelStats, KernelMode, MapConfig, Prior};
 use proptest::prelude::*;
 
 /// Largest relative differences over every voxel in reach: λ, μ (per voxel ‖Δμ‖∞ relative to the larger
@@ -155,7 +155,7 @@ fn non_centred_features_match_f64() {
         let r = chunk * 200..(chunk + 1) * 200;
         obs.integrate(&Isometry3::identity(), &pts[r.clone()], &feats[r]);
     }
-    let lut: latentbki::KernelLut = latentbki::KernelLut::new(&config).unwrap();
+    let lut: latentbki::kernel::KernelLut = latentbki::kernel::KernelLut::new(&config).unwrap();
     let prior = config.prior();
     let mut worst = 0.0f64;
     obs.for_each_posterior(|key, post| {
@@ -164,7 +164,8 @@ fn non_centred_features_match_f64() {
         let mut s1 = [0.0f64; D];
         let mut ys = Vec::new();
         for (p, y) in pts.iter().zip(&feats) {
-            let k_of = latentbki::VoxelKey::from_position(*p, 1.0 / config.voxel_size()).unwrap();
+            let k_of =
+                latentbki::key::VoxelKey::from_position(*p, 1.0 / config.voxel_size()).unwrap();
             let k = lut.weight_at(0, k_of.x - key.x, k_of.y - key.y, k_of.z - key.z) as f64;
             if k > 0.0 {
                 w += k;

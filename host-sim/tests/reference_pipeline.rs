@@ -5,7 +5,7 @@
 use host_sim::ReferenceMap;
 use latentbki::kernel::sparse_kernel;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::{to_map_frame, KernelMode, MapConfig, Prior, VoxelKey};
+use latentbki::{key::to_map_frame, key::VoxelKey, KernelMode, MapConfig, Prior};
 use proptest::prelude::*;
 use std::collections::BTreeMap;
 

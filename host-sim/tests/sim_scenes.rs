@@ -6,8 +6,8 @@ use host_sim::sim::indoor::{self, IndoorRun, IndoorScene, INDOOR_CLASSES};
 use host_sim::sim::tile::{self, Tile, TileRun};
 use host_sim::sim::vocab::{cosine, Vocabulary, FULL_DIM};
 use host_sim::sim::{pca, LabelledPoint};
-use latentbki::rand_xoshiro::rand_core::SeedableRng;
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
+use rand_xoshiro::rand_core::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
 
 #[test]
 fn tile_is_read_in_metres_with_its_classes() {

@@ -107,7 +107,7 @@ fn base_station_command_keeps_saves_and_exports_the_map() {
 }
 
 /// The PCA of the recorded stream's robots as the `--pca` file (`mean` 384, `components` 64 × 384).
-fn write_pca(path: &std::path::Path, pca: &latentbki::Pca<D, F>) {
+fn write_pca(path: &std::path::Path, pca: &latentbki::decode::Pca<D, F>) {
     host_sim::npy_io::write_pca_npz(path, pca).unwrap();
 }
 

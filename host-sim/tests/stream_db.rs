@@ -10,7 +10,7 @@ use host_sim::base_station::{BaseStation, RestoreError};
 use host_sim::link::{ByteLog, SplitMix};
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::SummaryCodec;
-use latentbki::{Evicted, EvictionSink, ObsStats, VoxelKey};
+use latentbki::{key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink};
 use std::io::Write;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};

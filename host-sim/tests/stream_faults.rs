@@ -9,7 +9,9 @@ use host_sim::base_station::BaseStation;
 use host_sim::link::{split_frames, ByteLog, Faults, FaultyLink, SplitMix};
 use latentbki::frame::{live, EncoderSettings};
 use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec, CRC32, PROTOCOL_VERSION};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{
+    frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
+};
 use std::collections::{BTreeMap, BTreeSet};
 
 const D: usize = 64;

@@ -102,7 +102,7 @@ fn queries_and_exports_show_the_scene() {
     };
     let road = host_sim::base_station::export::label_colour(ROAD);
     assert_eq!(px(4.0, 0.05), road, "{:?}", {
-        let k = latentbki::VoxelKey::new(40, 0, 0);
+        let k = latentbki::key::VoxelKey::new(40, 0, 0);
         (
             map.label(&k, &world.vocab),
             map.observations(&k).map(|o| o.count),

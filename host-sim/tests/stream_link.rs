@@ -8,7 +8,7 @@ mod stream_common;
 use host_sim::base_station::BaseStation;
 use host_sim::link::{ByteLog, Faults, FaultyWriter, Pipe, SplitMix};
 use latentbki::frame::{EncoderSettings, Resend};
-use latentbki::{Evicted, Setup};
+use latentbki::{sink::Evicted, Setup};
 use stream_common::*;
 
 /// Link time per tick (ms) and bytes per tick.

@@ -8,7 +8,7 @@ use latentbki::wire::{
     decode_summary, encode_codes, encode_summary, mean_error_bound, parse_body, DeltaBase, Message,
     SessionConfig, SummaryCodec,
 };
-use latentbki::{EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::EvictionSink, MapConfig};
 use proptest::prelude::*;
 
 const D: usize = 16;

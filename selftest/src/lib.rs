@@ -891,8 +891,8 @@ pub enum RunError<E> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use latentbki::key::to_map_frame;
     use latentbki::quant::packed_len;
-    use latentbki::to_map_frame;
 
     #[test]
     fn normal_has_unit_moments() {

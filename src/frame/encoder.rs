@@ -26,6 +26,14 @@ use crate::wire::{
 const VOXEL_FRAME_OVERHEAD: usize = 26;
 
 /// How often the encoder repeats the session header and its link statistics.
+///
+/// ```
+/// use latentbki::EncoderSettings;
+///
+/// // Robot 2, session 41; repeat the session header every 8 frames (a lossy radio), statistics every 64.
+/// const LINK: EncoderSettings = EncoderSettings { header_interval: 8, ..EncoderSettings::new(2, 41) };
+/// assert_eq!(LINK.stats_interval, 64);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct EncoderSettings {

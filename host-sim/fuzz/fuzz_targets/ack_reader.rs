@@ -5,7 +5,7 @@
 
 use latentbki::frame::{AckReader, EncoderSettings, FrameEncoder, Resend};
 use latentbki::wire::{SessionConfig, SummaryCodec, NO_FEATURE_SPACE};
-use latentbki::{EvictionSink, MapConfig, ObsStats, VoxelKey};
+use latentbki::{key::VoxelKey, obs::ObsStats, sink::EvictionSink, MapConfig};
 use libfuzzer_sys::fuzz_target;
 
 const D: usize = 8;

@@ -4,11 +4,11 @@
 //! in-memory map and sessions: nothing is written from a refused frame and nothing accepted is missed.
 #![no_main]
 
-use host_sim::base_station::store::SqliteStore;
-use host_sim::base_station::BaseStation;
+use latentbki_station::store::SqliteStore;
+use latentbki_station::BaseStation;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{sink::Evicted, sink::EvictionSink, frame::FrameEncoder, MapConfig, obs::ObsStats, key::VoxelKey};
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 

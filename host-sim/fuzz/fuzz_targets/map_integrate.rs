@@ -4,7 +4,7 @@
 #![no_main]
 
 use latentbki::nalgebra::{Isometry3, Translation3};
-use latentbki::{packed_len, Evicted, LocalMap, MapConfig, SinkFull};
+use latentbki::{packed_len, sink::Evicted, local_map::LocalMap, MapConfig, sink::SinkFull};
 use libfuzzer_sys::fuzz_target;
 
 const D: usize = 4;

@@ -4,7 +4,7 @@
 
 use latentbki::frame::{EncoderSettings, Feed, FrameDecoder};
 use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec};
-use latentbki::{Evicted, EvictionSink, FrameEncoder, MapConfig, ObsStats, VoxelKey};
+use latentbki::{sink::Evicted, sink::EvictionSink, frame::FrameEncoder, MapConfig, obs::ObsStats, key::VoxelKey};
 use libfuzzer_sys::fuzz_target;
 
 const D: usize = 8;

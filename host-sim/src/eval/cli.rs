@@ -43,6 +43,9 @@ pub struct DemoArgs {
     /// The robot's link to the base station.
     #[command(flatten)]
     pub link: crate::demo_radio::LinkArgs,
+    /// Watch the demo's base station live (`--view`) or record it (`--record FILE.mcap`).
+    #[command(flatten)]
+    pub view: crate::base_station::cli::ViewArgs,
 }
 
 /// `eval` options.

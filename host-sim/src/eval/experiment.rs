@@ -24,9 +24,12 @@ use crate::sim::encoder::{Encoder, NoiseModel};
 use crate::sim::vocab::{Vocabulary, FULL_DIM};
 use crate::sim::{mix_all, pca, unit, Sequence};
 use indicatif::{ProgressBar, ProgressStyle};
-use latentbki::rand_xoshiro::rand_core::SeedableRng;
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
-use latentbki::{MapConfig, Pca, Sampler, SamplingMode, Spread, VoxelStats};
+use latentbki::{
+    decode::Pca, inference::Spread, sampling::Sampler, sampling::SamplingMode, stats::VoxelStats,
+    MapConfig,
+};
+use rand_xoshiro::rand_core::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -146,10 +149,11 @@ pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame
                     out.held_classes.push(p.class);
                     out.held_features.push(y);
                 } else {
-                    let s = latentbki::to_map_frame(&inv, p.position);
+                    let s = latentbki::key::to_map_frame(&inv, p.position);
                     out.points.push(s);
                     // What the maps compute from (pose, sensor point): every method keys the same position.
-                    out.map_points.push(latentbki::to_map_frame(&f.pose, s));
+                    out.map_points
+                        .push(latentbki::key::to_map_frame(&f.pose, s));
                     out.features.push(y);
                 }
             }

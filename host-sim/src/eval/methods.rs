@@ -21,8 +21,8 @@
 use crate::ObsMap;
 use latentbki::frame::EncoderSettings;
 use latentbki::{
-    locate, spread, Codebook, Evicted, KernelLut, MapConfig, ObsLookup, ObsStats, Setup, VoxelKey,
-    VoxelStats,
+    batch::locate, batch::spread, decode::Codebook, kernel::KernelLut, key::VoxelKey,
+    obs::ObsLookup, obs::ObsStats, sink::Evicted, stats::VoxelStats, MapConfig, Setup,
 };
 use std::collections::HashMap;
 
@@ -441,7 +441,7 @@ impl Mapper for OnDevice {
     fn posterior(&self, p: [f32; 3]) -> Option<VoxelStats<D>> {
         let map = self.robot.map();
         let key = key_of(p, map.config())?;
-        let obs = latentbki::gather(map.kernel(), self, key).ok()?;
+        let obs = latentbki::obs::gather(map.kernel(), self, key).ok()?;
         (!obs.is_empty()).then(|| obs.posterior(&map.prior()))
     }
     fn voxels(&self) -> usize {

@@ -49,13 +49,38 @@ impl Scene {
             Self::Indoor => 8.5,
         }
     }
-    /// The default free-text query pictured for this scene.
+    /// The default free-text query pictured for this scene (for the tile, [`tile_query`] picks one from the
+    /// classes it has).
     pub fn default_query(&self) -> &'static str {
         match self {
             Self::Tile => "house",
             Self::Indoor => "kitchen",
         }
     }
+}
+
+/// The query pictured on a tile: a word for one of the classes the tile has — another word than the class
+/// name where the vocabulary has one (the open-vocabulary case: "house" finds buildings), in this order of
+/// preference — else the name of its first named class; `None` when every class is a user code.
+pub fn tile_query(classes: &[String], vocab: &Vocabulary) -> Option<String> {
+    const SYNONYMS: [(&str, &str); 11] = [
+        ("building", "house"),
+        ("high vegetation", "tree"),
+        ("water", "water"),
+        ("road surface", "road"),
+        ("bridge deck", "bridge"),
+        ("transmission tower", "tower"),
+        ("conductor wire", "wire"),
+        ("medium vegetation", "vegetation"),
+        ("low vegetation", "grass"),
+        ("rail", "rail"),
+        ("ground", "dirt"),
+    ];
+    SYNONYMS
+        .iter()
+        .find(|(class, _)| classes.iter().any(|c| c == class))
+        .map(|(_, word)| word.to_string())
+        .or_else(|| classes.iter().find(|c| vocab.get(c).is_ok()).cloned())
 }
 
 /// Scene-side options.
@@ -323,6 +348,19 @@ impl SceneSource {
         }
         let frames = test.frames.len();
         match (self.scene, &self.tile) {
+            (Scene::Tile, Some(t)) if t.points.len() < need => {
+                let advice = if (t.points.len() as u64) < t.file_points {
+                    "raise --max-points, or use a larger tile"
+                } else {
+                    "use a larger tile"
+                };
+                bail!(
+                    "too few points: {} holds {} usable points and the {}-component feature PCA needs at least {need}: {advice}",
+                    self.title(),
+                    t.points.len(),
+                    super::methods::D,
+                )
+            }
             (Scene::Tile, Some(t)) => {
                 let (lo, hi) = t.bounds;
                 let (range, altitude) = self.tile_flight;
@@ -496,7 +534,10 @@ pub fn run(
     .map_err(fig)?;
     figs.push(p);
     let queries: Vec<String> = if options.queries.is_empty() {
-        vec![scene.default_query().to_string()]
+        match scene {
+            Scene::Tile => tile_query(&dec.classes, &vocab).into_iter().collect(),
+            Scene::Indoor => vec![scene.default_query().to_string()],
+        }
     } else {
         options.queries.clone()
     };
@@ -554,6 +595,7 @@ pub fn run(
             100.0 * r.confusion.miou_authors()
         );
     }
+    md += &super::per_class::iou_table(&dec.classes, &results);
     md += &format!(
         "\nUncertainty of LatentBKI (f = {f}) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points). Sampling: {} draws, variance of the predicted class's score:\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
         spars.points, setup.sampling_draws

@@ -12,7 +12,7 @@ use crate::sim::sensor::{DepthCamera, RayScene};
 use crate::sim::trajectory::camera_pose;
 use latentbki::batch::spread;
 use latentbki::nalgebra::{Isometry3, Vector3};
-use latentbki::{KernelLut, MapConfig, VoxelKey};
+use latentbki::{kernel::KernelLut, key::VoxelKey, MapConfig};
 use rustc_hash::FxHashMap;
 use std::collections::BinaryHeap;
 

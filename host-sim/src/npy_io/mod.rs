@@ -16,7 +16,7 @@ mod tests;
 pub use format::{parse_npy, write_npy, Element, NpyHeader};
 
 use latentbki::nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
-use latentbki::{VoxelKey, VoxelStats};
+use latentbki::{key::VoxelKey, stats::VoxelStats};
 use std::io::{BufWriter, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
@@ -185,7 +185,7 @@ pub fn write_map_npz<const D: usize>(
     let tvar = voxels
         .iter()
         .flat_map(|(_, s)| s.t_var().unwrap_or([f32::NAN; D]));
-    let authors = |s: &VoxelStats<D>| s.optimality(latentbki::Spread::AuthorsTVar);
+    let authors = |s: &VoxelStats<D>| s.optimality(latentbki::inference::Spread::AuthorsTVar);
     let eopt = voxels
         .iter()
         .map(|(_, s)| authors(s).map_or(f32::NAN, |o| o.e));
@@ -240,7 +240,7 @@ impl Compression {
 /// `base-station --pca` reads.
 pub fn write_pca_npz<const D: usize, const F: usize>(
     path: &Path,
-    pca: &latentbki::Pca<D, F>,
+    pca: &latentbki::decode::Pca<D, F>,
 ) -> Result<(), IoError> {
     let file = std::fs::File::create(path).map_err(io_err(path))?;
     let mut zip = zip::ZipWriter::new(BufWriter::new(file));

@@ -22,7 +22,7 @@
 
 use super::vocab::{cosine, FULL_DIM};
 use super::{mix_all, unit, LabelledPoint};
-use latentbki::Pca;
+use latentbki::decode::Pca;
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 

@@ -11,9 +11,9 @@ use super::tile::Tile;
 use super::trajectory::{ellipse, level_pose};
 use super::{LabelledPoint, ScanFrame, Sequence};
 use latentbki::nalgebra::Isometry3;
-use latentbki::rand_xoshiro::rand_core::SeedableRng;
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
 use latentbki::MapConfig;
+use rand_xoshiro::rand_core::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::{HashMap, HashSet};
 
 /// Terrain following: the robot flies `altitude` above the lowest terrain point and leaves that height

@@ -10,9 +10,9 @@
 use super::sensor::{DepthCamera, MultizoneTof, RayScene};
 use super::trajectory::{along_polyline, camera_pose};
 use super::{mix_all, unit, ScanFrame, Sequence};
-use latentbki::rand_xoshiro::rand_core::SeedableRng;
-use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
 use latentbki::{KernelMode, MapConfig, Prior};
+use rand_xoshiro::rand_core::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
 
 /// The indoor categories (all in the committed vocabulary).
 pub const INDOOR_CLASSES: [&str; 23] = [

@@ -5,8 +5,8 @@
 //! of the 384 × 384 covariance in f64; the device only ever sees the resulting projection.
 
 use super::vocab::FULL_DIM;
+use latentbki::decode::Pca;
 use latentbki::nalgebra::{DMatrix, SymmetricEigen};
-use latentbki::Pca;
 
 /// Why a PCA could not be fitted.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

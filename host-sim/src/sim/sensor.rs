@@ -228,8 +228,8 @@ impl MultizoneTof {
 mod tests {
     use super::*;
     use crate::sim::trajectory::camera_pose;
-    use latentbki::rand_xoshiro::rand_core::SeedableRng;
-    use latentbki::rand_xoshiro::Xoshiro256PlusPlus;
+    use rand_xoshiro::rand_core::SeedableRng;
+    use rand_xoshiro::Xoshiro256PlusPlus;
 
     /// A wall at x = 3 (class 1) and nothing else.
     struct Wall;

@@ -81,14 +81,63 @@ impl Default for ReadOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum TileError {
     /// The LAS reader failed.
-    #[error("reading LAS: {0}")]
+    #[error("reading LAS: {}", las_error(.0))]
     Las(#[from] las::Error),
+    /// The file does not start with the LAS signature.
+    #[error(
+        "not a LAS or LAZ file (it does not start with \"LASF\"); give a .las/.laz point cloud"
+    )]
+    NotLas,
+    /// The LAZ decoder gave up on the file.
+    #[error("the LAZ decoder cannot read this file ({0}); decompress it with another tool first (`pdal translate in.laz out.las`, or LAStools' `laszip -i in.laz -o out.las`)")]
+    Decoder(String),
     /// The file holds no point (or none that is not withheld).
     #[error("the file holds no point{0}")]
     Empty(String),
     /// The coordinates are not lengths.
     #[error(transparent)]
     Crs(#[from] CrsError),
+}
+
+/// A `las` error, with what to do when the file ends early.
+fn las_error(e: &las::Error) -> String {
+    match e {
+        las::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => format!(
+            "{io}: the file ends before its header, records or points do; it is truncated or damaged (rewrite it with `pdal translate` or LAStools' `las2las`)"
+        ),
+        e => e.to_string(),
+    }
+}
+
+/// The points an uncompressed LAS file's bytes can hold ((size − offset to the points) / record length);
+/// `None` for LAZ or when the header cannot be read.
+fn uncompressed_points_in(path: &Path) -> Option<u64> {
+    let mut head = [0u8; 107];
+    let mut f = std::fs::File::open(path).ok()?;
+    std::io::Read::read_exact(&mut f, &mut head).ok()?;
+    let format = head[104];
+    if format & 0x80 != 0 || format & 0x40 != 0 {
+        return None; // LAZ sets bit 7 (or 6) of the point format
+    }
+    let offset = u64::from(u32::from_le_bytes([head[96], head[97], head[98], head[99]]));
+    let record = u64::from(u16::from_le_bytes([head[105], head[106]]));
+    let size = f.metadata().ok()?.len();
+    (record > 0).then(|| size.saturating_sub(offset) / record)
+}
+
+/// Run `f` with the panic hook silenced; a panic becomes `Err` with its message.
+fn quietly<T>(f: impl FnOnce() -> T) -> Result<T, String> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    std::panic::set_hook(hook);
+    result.map_err(|payload| {
+        payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "it panicked".into())
+    })
 }
 
 /// Points read from a file, in file units, before conversion.
@@ -101,10 +150,15 @@ struct Raw {
 }
 
 /// Read every `stride`-th point that is not withheld, in batches (a 100 M-point file never sits in
-/// memory whole).
-fn read_points(reader: &mut las::Reader, max_points: usize) -> Result<Raw, las::Error> {
+/// memory whole); at most `available` points (a truncated file holds fewer than its header says).
+fn read_points(
+    reader: &mut las::Reader,
+    max_points: usize,
+    available: Option<u64>,
+) -> Result<Raw, las::Error> {
     let file_points = reader.header().number_of_points();
-    let stride = file_points.div_ceil(max_points.max(1) as u64).max(1);
+    let readable = available.map_or(file_points, |a| a.min(file_points));
+    let stride = readable.div_ceil(max_points.max(1) as u64).max(1);
     let extended = reader.header().point_format().is_extended;
     let mut data = las::PointDataBuilder::new()
         .for_header(reader.header())
@@ -118,7 +172,11 @@ fn read_points(reader: &mut las::Reader, max_points: usize) -> Result<Raw, las::
     };
     let mut index = 0u64;
     loop {
-        let got = reader.fill_points(1 << 16, &mut data)?;
+        let batch = (readable - index).min(1 << 16);
+        if batch == 0 {
+            break;
+        }
+        let got = reader.fill_points(batch, &mut data)?;
         if got == 0 {
             break;
         }
@@ -240,11 +298,32 @@ impl Tile {
     }
 
     /// Load a `.las` or `.laz` file as `options` say.
+    ///
+    /// A panic inside the LAZ decoder (the `laz` crate panics on some old LASzip variants, e.g. variable
+    /// chunks without a chunk table) becomes an error here: the file is unusable, which is the user's
+    /// problem to solve (decompress it with another tool), not a bug of ours.
     pub fn read(path: &Path, options: &ReadOptions) -> Result<Self, TileError> {
-        Self::from_reader(las::Reader::from_path(path)?, options)
+        let mut magic = [0u8; 4];
+        let n = std::fs::File::open(path)
+            .and_then(|mut f| std::io::Read::read(&mut f, &mut magic))
+            .map_err(las::Error::from)?;
+        if n < 4 || &magic != b"LASF" {
+            return Err(TileError::NotLas);
+        }
+        let available = uncompressed_points_in(path);
+        quietly(|| Self::from_reader_with(las::Reader::from_path(path)?, options, available))
+            .unwrap_or_else(|why| Err(TileError::Decoder(why)))
     }
 
-    fn from_reader(mut reader: las::Reader, options: &ReadOptions) -> Result<Self, TileError> {
+    fn from_reader(reader: las::Reader, options: &ReadOptions) -> Result<Self, TileError> {
+        Self::from_reader_with(reader, options, None)
+    }
+
+    fn from_reader_with(
+        mut reader: las::Reader,
+        options: &ReadOptions,
+        available: Option<u64>,
+    ) -> Result<Self, TileError> {
         let units = match options.units {
             Some(u) => Units::uniform(u, "--units"),
             None => units_of(reader.header())?.unwrap_or_else(|| {
@@ -254,8 +333,14 @@ impl Tile {
                 )
             }),
         };
-        let raw = read_points(&mut reader, options.max_points)?;
+        let raw = read_points(&mut reader, options.max_points, available)?;
         let mut notes = Vec::new();
+        if let Some(a) = available.filter(|&a| a < raw.file_points) {
+            notes.push(format!(
+                "the file is truncated: it holds {a} of the {} points its header announces",
+                raw.file_points
+            ));
+        }
         if raw.stride > 1 {
             notes.push(format!(
                 "kept every {} of its {} points (--max-points {})",

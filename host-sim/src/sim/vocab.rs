@@ -127,12 +127,12 @@ pub fn is_unnamed_class(phrase: &str) -> bool {
 /// phrase (so every run and every tool agrees). In 384 dimensions it is nearly orthogonal to every text
 /// embedding (|cos| ≈ 0.05), so the simulated network rarely confuses it with a named class.
 pub fn unnamed_class_direction(phrase: &str) -> [f32; FULL_DIM] {
-    use latentbki::rand_xoshiro::rand_core::SeedableRng;
     use rand_distr::Distribution;
+    use rand_xoshiro::rand_core::SeedableRng;
     let seed = phrase
         .bytes()
         .fold(0x000C_1A55_u64, |h, b| super::mix(h ^ u64::from(b)));
-    let mut rng = latentbki::rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut v = [0.0f32; FULL_DIM];
     for x in &mut v {
         *x = rand_distr::StandardNormal.sample(&mut rng);

@@ -8,7 +8,7 @@
 
 use super::global_map::GlobalMap;
 pub use crate::png_io::RgbImage;
-use latentbki::{Codebook, VoxelKey, VoxelStats};
+use latentbki::{decode::Codebook, key::VoxelKey, stats::VoxelStats};
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;
@@ -256,14 +256,14 @@ pub fn uncertainty_image<const D: usize>(
 }
 
 /// Top-down information gain: what one more point's worth of kernel weight would teach the topmost voxel
-/// of each column ([`latentbki::voxel_gain`] at its λ), normalised over the map — where a robot should look
+/// of each column ([`latentbki::info_gain::voxel_gain`] at its λ), normalised over the map — where a robot should look
 /// next.
 pub fn gain_image<const D: usize>(map: &GlobalMap<D>, scale: u32) -> Result<RgbImage, ExportError> {
     let cols = columns(map);
     let value = |column: &[(VoxelKey, VoxelStats<D>)]| {
         column
             .last()
-            .map(|(_, p)| latentbki::voxel_gain(p.lambda, 1.0))
+            .map(|(_, p)| latentbki::info_gain::voxel_gain(p.lambda, 1.0))
     };
     let (lo, hi) = cols
         .values()

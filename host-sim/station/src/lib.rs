@@ -31,9 +31,9 @@ pub use global_map::{
 pub use obs_map::ObsMap;
 
 use latentbki::frame::{Ack, DecoderStats, SeqTracker};
+use latentbki::key::VoxelKey;
 use latentbki::receiver::{Receipt, Receiver, SessionTable};
 use latentbki::wire::{LinkStats, Message, SessionConfig, Summary, WireError};
-use latentbki::VoxelKey;
 use std::collections::{BTreeMap, HashSet};
 use store::{Changes, MapStore, Snapshot, StoreError};
 

@@ -13,8 +13,9 @@
 use latentbki::batch::locate;
 use latentbki::nalgebra::Isometry3;
 use latentbki::{
-    to_map_frame, ConfigError, Forgetting, GatherError, KernelLut, MapConfig, ObsLookup, ObsStats,
-    Prior, RejectionCounts, Stamped, VoxelKey, VoxelStats,
+    forget::Forgetting, forget::Stamped, kernel::KernelLut, key::to_map_frame, key::VoxelKey,
+    obs::GatherError, obs::ObsLookup, obs::ObsStats, stats::VoxelStats, ConfigError, MapConfig,
+    Prior, RejectionCounts,
 };
 use rustc_hash::FxHashMap;
 
@@ -45,7 +46,7 @@ fn voxel_of(block: BlockKey, local: usize) -> VoxelKey {
 }
 
 /// The voxels a view's points fall in, with the number of points in each, sorted by key: what
-/// [`latentbki::view_score`] takes. Points without a key (non-finite, out of range) are left out.
+/// [`latentbki::info_gain::view_score`] takes. Points without a key (non-finite, out of range) are left out.
 pub fn view_hits(points: &[[f32; 3]], inv_voxel_size: f32) -> Vec<(VoxelKey, f32)> {
     let mut keys: Vec<VoxelKey> = points
         .iter()
@@ -175,7 +176,7 @@ impl<const D: usize> ObsMap<D> {
         }
         let unpaired = points.len().abs_diff(features.len());
         for _ in 0..unpaired {
-            self.rejections.count(latentbki::Rejection::Unpaired);
+            self.rejections.count(latentbki::batch::Rejection::Unpaired);
         }
         self.points += accepted as u64;
         accepted
@@ -266,14 +267,14 @@ impl<const D: usize> ObsMap<D> {
     /// The posterior of one voxel (the prior if nothing is in reach).
     pub fn posterior(&self, key: VoxelKey) -> VoxelStats<D> {
         // The table was checked to be voxel-offset at construction.
-        latentbki::gather(&self.lut, self, key)
+        latentbki::obs::gather(&self.lut, self, key)
             .unwrap_or(ObsStats::EMPTY)
             .posterior(&self.prior)
     }
 
     /// The posterior of a voxel within the kernel's reach of an observation; `None` beyond it.
     pub fn posterior_in_reach(&self, key: VoxelKey) -> Option<VoxelStats<D>> {
-        let obs = latentbki::gather(&self.lut, self, key).ok()?;
+        let obs = latentbki::obs::gather(&self.lut, self, key).ok()?;
         (!obs.is_empty()).then(|| obs.posterior(&self.prior))
     }
 
@@ -282,14 +283,14 @@ impl<const D: usize> ObsMap<D> {
     pub fn view_score(&self, points: &[[f32; 3]]) -> f32 {
         let hits = view_hits(points, self.lut.inv_voxel_size());
         // The table was checked to be voxel-offset at construction, and `view_hits` sorts.
-        latentbki::view_score(&self.lut, self, self.prior.lambda, &hits).unwrap_or(0.0)
+        latentbki::info_gain::view_score(&self.lut, self, self.prior.lambda, &hits).unwrap_or(0.0)
     }
 
     /// The expected information gain of one voxel if it received kernel weight `w`
-    /// ([`latentbki::voxel_gain`] at its gathered λ).
+    /// ([`latentbki::info_gain::voxel_gain`] at its gathered λ).
     pub fn voxel_gain(&self, key: VoxelKey, w: f32) -> f32 {
         let k = latentbki::info_gain::gathered_count(&self.lut, self, key).unwrap_or(0.0);
-        latentbki::voxel_gain(self.prior.lambda + k, w)
+        latentbki::info_gain::voxel_gain(self.prior.lambda + k, w)
     }
 
     /// Bitmask, per block, of every voxel within the kernel's reach of an observed voxel.
@@ -343,7 +344,7 @@ impl<const D: usize> ObsMap<D> {
 
     /// Call `f(key, posterior)` for every voxel within the kernel's reach of an observed voxel, in blocks
     /// sorted by key (deterministic order). Each posterior is gathered from the neighbours' statistics
-    /// exactly as [`latentbki::gather`] does (same operations, same order: bit-identical results).
+    /// exactly as [`latentbki::obs::gather`] does (same operations, same order: bit-identical results).
     pub fn for_each_posterior(&self, mut f: impl FnMut(VoxelKey, &VoxelStats<D>)) {
         let mut masks = self.reach_masks();
         masks.sort_unstable_by_key(|(k, _)| *k);

@@ -12,7 +12,7 @@
 //! voxel-block key). [`SqliteStore`] is the embedded default: one file, WAL journal (readers never block
 //! the receiver and always see one committed snapshot), `synchronous = FULL` (a commit survives a power cut).
 
-use latentbki::VoxelKey;
+use latentbki::key::VoxelKey;
 use rusqlite::{params, Connection, OpenFlags, OptionalExtension};
 use std::path::{Path, PathBuf};
 

@@ -10,8 +10,8 @@ use latentbki::frame::EncoderSettings;
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{feature_space_id, SessionConfig, SummaryCodec};
 use latentbki::{
-    packed_len, Codebook, Evicted, FrameEncoder, LocalMap, MapConfig, Mapper, ObsStats, Pca, Setup,
-    VoxelKey, VoxelStats,
+    decode::Codebook, decode::Pca, frame::FrameEncoder, key::VoxelKey, local_map::LocalMap,
+    obs::ObsStats, packed_len, sink::Evicted, stats::VoxelStats, MapConfig, Mapper, Setup,
 };
 
 pub const D: usize = 64;

@@ -10,7 +10,7 @@ use foxglove::{
     Context, Encode, McapWriterHandle, RawChannel, Schema, SinkId, WebSocketServerHandle,
 };
 use latentbki::wire::SessionConfig;
-use latentbki::{Codebook, VoxelKey};
+use latentbki::{decode::Codebook, key::VoxelKey};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
@@ -94,6 +94,8 @@ pub struct ViewerSummary {
     pub refused: u64,
     /// Phrases that could not be encoded.
     pub phrase_errors: Vec<String>,
+    /// From the view's start to its finish.
+    pub elapsed: Duration,
 }
 
 /// The live view and/or recording of one base station.
@@ -299,6 +301,7 @@ struct Worker<const D: usize, const K: usize> {
 
 impl<const D: usize, const K: usize> Worker<D, K> {
     fn run(mut self) -> ViewerSummary {
+        let started = Instant::now();
         let mut last = Instant::now() - self.interval;
         loop {
             // At most one update per interval.
@@ -350,6 +353,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             }
         }
         self.summary.voxels = self.scene.as_ref().map_or(0, Scene::len);
+        self.summary.elapsed = started.elapsed();
         self.summary.refused = guard::refused() - self.refused_at_start;
         if let Some(m) = self.mcap.take() {
             let _ = m.close();
@@ -364,8 +368,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
     }
 
     fn send_scene(&mut self, layer: Layer, msg: &SceneUpdate, sink: Option<SinkId>) {
-        let mut buf = Vec::with_capacity(msg.encoded_len().unwrap_or(0));
-        msg.encode(&mut buf).expect("a Vec grows");
+        let buf = super::scene::encode(msg);
         let ch = self.channels.layers[layer as usize].1.clone();
         self.send(&ch, &buf, sink);
     }

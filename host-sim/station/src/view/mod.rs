@@ -7,7 +7,7 @@
 //! is 7× smaller per voxel (16 B against ≈ 113 B) but replaces the whole cloud on every message: at 100k
 //! voxels each update would be the full 1.6 MB, however few voxels changed. Cubes also show voxels as
 //! what they are (a side of the voxel size, in metres, at any zoom), and Foxglove draws each entity's
-//! cubes as one instanced mesh, so 100k cubes are ~200 draw calls. Measured (`host-sim bench-view`): the
+//! cubes as one instanced mesh, so 100k cubes are ~200 draw calls. Measured (`host-sim view-bench`): the
 //! full scene of a 100k-voxel map is one ≈ 11 MB message per layer, built and encoded in the figure that
 //! command prints (goal ≤ 50 ms).
 //!
@@ -29,10 +29,12 @@ pub mod guard;
 mod live;
 pub mod scene;
 
+/// The Foxglove SDK the view is built on (its message types, for callers of [`Scene`]).
+pub use foxglove;
 pub use live::{Viewer, ViewerSummary};
 pub use scene::{BlockKey, Layer, Scene, VoxelRow};
 
-use latentbki::Codebook;
+use latentbki::decode::Codebook;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 

@@ -15,7 +15,7 @@ use foxglove::messages::{
     scene_entity_deletion, Color, CubePrimitive, KeyValuePair, Pose, Quaternion, SceneEntity,
     SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
 };
-use latentbki::{Codebook, Spread, VoxelKey};
+use latentbki::{decode::Codebook, inference::Spread, key::VoxelKey};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write as _;
 
@@ -399,11 +399,19 @@ impl<const D: usize, const K: usize> Scene<D, K> {
     }
 }
 
+/// A message as it goes on the wire (protobuf).
+pub fn encode(msg: &SceneUpdate) -> Vec<u8> {
+    use foxglove::Encode;
+    let mut buf = Vec::with_capacity(msg.encoded_len().unwrap_or(0));
+    msg.encode(&mut buf).expect("a Vec grows");
+    buf
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use latentbki::wire::{SessionConfig, Summary};
-    use latentbki::{MapConfig, ObsStats, SummaryCodec};
+    use latentbki::{obs::ObsStats, wire::SummaryCodec, MapConfig};
 
     const D: usize = 4;
 
