@@ -367,10 +367,9 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         self.summary.bytes += bytes.len() as u64;
     }
 
-    fn send_scene(&mut self, layer: Layer, msg: &SceneUpdate, sink: Option<SinkId>) {
-        let buf = super::scene::encode(msg);
+    fn send_scene(&mut self, layer: Layer, buf: &[u8], sink: Option<SinkId>) {
         let ch = self.channels.layers[layer as usize].1.clone();
-        self.send(&ch, &buf, sink);
+        self.send(&ch, buf, sink);
     }
 
     fn update(
@@ -429,15 +428,15 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         let time = Timestamp::now();
         self.summary.updates += 1;
         for layer in Layer::ALL {
-            let scene = self.scene.as_ref().expect("set above");
-            let msg = if full || (heat_full && layer == Layer::Heat) {
-                scene.full_message(layer, time)
+            let scene = self.scene.as_mut().expect("set above");
+            let buf = if full || (heat_full && layer == Layer::Heat) {
+                scene.full_bytes(layer, time)
             } else if !dirty.is_empty() {
-                scene.update_message(layer, &dirty, time)
+                scene.update_bytes(layer, &dirty, time)
             } else {
                 continue;
             };
-            self.send_scene(layer, &msg, None);
+            self.send_scene(layer, &buf, None);
         }
     }
 
@@ -462,11 +461,11 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             return;
         };
         let time = Timestamp::now();
-        let msg = match &self.scene {
-            Some(s) => s.full_message(layer, time),
-            None => Scene::<D, K>::new(1.0).full_message(layer, time),
+        let buf = match &mut self.scene {
+            Some(s) => s.full_bytes(layer, time),
+            None => Scene::<D, K>::new(1.0).full_bytes(layer, time),
         };
-        self.send_scene(layer, &msg, Some(sink));
+        self.send_scene(layer, &buf, Some(sink));
     }
 
     fn legend(&self, phrase: &str) -> Vec<u8> {

@@ -8,8 +8,8 @@
 //! voxels each update would be the full 1.6 MB, however few voxels changed. Cubes also show voxels as
 //! what they are (a side of the voxel size, in metres, at any zoom), and Foxglove draws each entity's
 //! cubes as one instanced mesh, so 100k cubes are ~200 draw calls. Measured (`host-sim view-bench`): the
-//! full scene of a 100k-voxel map is one ≈ 11 MB message per layer, built and encoded in the figure that
-//! command prints (goal ≤ 50 ms).
+//! full scene of a 100k-voxel map is one ≈ 12 MB message per layer; each block's entity is encoded once
+//! and kept until it changes, so a late joiner's scene is those bytes joined (goal ≤ 50 ms).
 //!
 //! **Topics** (frame `map`): [`Layer::Classes`] `/map/classes`, [`Layer::Heat`] `/map/heat`,
 //! [`Layer::Uncertainty`] `/map/uncertainty`, [`Layer::Robots`] `/map/robots` (`foxglove.SceneUpdate`,

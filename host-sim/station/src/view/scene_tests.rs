@@ -1,0 +1,130 @@
+//! Tests of [`super`] (apart, so that `scene.rs` stays one idea under 500 lines).
+
+use super::*;
+use latentbki::wire::{SessionConfig, Summary};
+use latentbki::{obs::ObsStats, wire::SummaryCodec, MapConfig};
+
+const D: usize = 4;
+
+fn map() -> GlobalMap<D> {
+    let codec = SummaryCodec {
+        mean_bits: 8,
+        psi_blocks: 4,
+        mean_bits_growth: 0,
+    };
+    GlobalMap::new(SessionConfig::new(&MapConfig::default(), D, codec, 0)).unwrap()
+}
+
+fn observe(map: &mut GlobalMap<D>, robot: u16, key: VoxelKey, m: f32) {
+    let obs = ObsStats {
+        count: 5.0,
+        mean: [m, 1.0 - m, 0.0, 0.0],
+        scatter: [0.1; D],
+    };
+    let s = Summary {
+        key,
+        residency: 0,
+        is_final: true,
+        obs,
+        at_ceiling: Default::default(),
+    };
+    map.apply(robot, 1, 0, &s);
+}
+
+fn vocab() -> Codebook<D, 4> {
+    Codebook::from_embeddings(&[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]).unwrap()
+}
+
+#[test]
+fn updates_carry_only_the_blocks_in_reach_and_full_scenes_everything() {
+    let mut m = map();
+    let (a, b, far) = (
+        VoxelKey::new(0, 0, 0),
+        VoxelKey::new(7, 0, 0),
+        VoxelKey::new(40, 0, 0),
+    );
+    for (k, v) in [(a, 0.9), (b, 0.2), (far, 0.8)] {
+        observe(&mut m, 1, k, v);
+    }
+    let cb = vocab();
+    let mut scene = Scene::<D, 4>::new(m.map_config().voxel_size());
+    let all = m.sorted_keys();
+    let dirty = scene.update(&m, &all, Some(&cb), None);
+    assert_eq!(scene.len(), 3);
+    assert_eq!(dirty.len(), 2, "a and b share a block");
+    assert_eq!(scene.row(&a).unwrap().class.unwrap().0, 0);
+    assert_eq!(scene.row(&b).unwrap().class.unwrap().0, 1);
+    // A second robot observes `far`: only its block changes; `a`'s block is untouched.
+    observe(&mut m, 2, far, 0.1);
+    let keys = Scene::<D, 4>::affected(&m, [far]);
+    assert_eq!(keys, vec![far]);
+    let dirty = scene.update(&m, &keys, Some(&cb), None);
+    assert_eq!(
+        dirty.into_iter().collect::<Vec<_>>(),
+        vec![BlockKey::of(far)]
+    );
+    assert_eq!(scene.row(&far).unwrap().robots, vec![1, 2]);
+    // Nothing changed: nothing to send.
+    assert!(scene.update(&m, &keys, Some(&cb), None).is_empty());
+    // The full scene deletes everything first, then holds every voxel once, values in metadata.
+    let t = Timestamp::now();
+    let full = scene.full_message(Layer::Classes, t);
+    assert_eq!(full.deletions.len(), 1);
+    let cubes: usize = full.entities.iter().map(|e| e.cubes.len()).sum();
+    assert_eq!(cubes, 3);
+    let e = scene.entity(Layer::Robots, BlockKey::of(far), t).unwrap();
+    assert_eq!(e.metadata[0].value, "40 0 0");
+    assert_eq!(e.metadata[1].value, "1+2");
+    // A phrase scores every voxel; the heat layer's metadata carries the exact score.
+    scene.set_query(Some(&cb));
+    let h = scene.entity(Layer::Heat, BlockKey::of(a), t).unwrap();
+    let scores: Vec<f32> = h.metadata[1]
+        .value
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    assert_eq!(scores[0], scene.row(&a).unwrap().heat.unwrap());
+    assert!(scores[0] > scores[1], "a matches category 0 better than b");
+}
+
+#[test]
+fn joined_bytes_are_the_messages_and_follow_every_change() {
+    use foxglove::Decode;
+    let mut m = map();
+    let (a, far) = (VoxelKey::new(0, 0, 0), VoxelKey::new(40, 0, 0));
+    for (k, v) in [(a, 0.9), (far, 0.8)] {
+        observe(&mut m, 1, k, v);
+    }
+    let cb = vocab();
+    let mut scene = Scene::<D, 4>::new(m.map_config().voxel_size());
+    scene.update(&m, &m.sorted_keys(), Some(&cb), None);
+    scene.fix_ranges();
+    let t = Timestamp::new(1, 0);
+    // First send builds every block; joining the cache again gives the same bytes.
+    for layer in Layer::ALL {
+        let built = encode(&scene.full_message(layer, t));
+        assert_eq!(scene.full_bytes(layer, t), built);
+        assert_eq!(scene.full_bytes(layer, t), built);
+    }
+    // `far` turns into class 1: its block is built again (at the new time), `a`'s block is kept.
+    observe(&mut m, 2, far, 0.0);
+    observe(&mut m, 2, far, 0.0);
+    let dirty = scene.update(&m, &[far], Some(&cb), None);
+    assert_eq!(scene.row(&far).unwrap().class.unwrap().0, 1);
+    let t2 = Timestamp::new(2, 0);
+    let upd = SceneUpdate::decode(&scene.update_bytes(Layer::Classes, &dirty, t2)[..]).unwrap();
+    assert_eq!(upd, scene.update_message(Layer::Classes, &dirty, t2));
+    let full =
+        SceneUpdate::decode(&scene.full_bytes(Layer::Classes, Timestamp::new(3, 0))[..]).unwrap();
+    assert_eq!(full.entities.len(), 2);
+    assert_eq!(
+        full.entities[0],
+        scene.entity(Layer::Classes, BlockKey::of(a), t).unwrap()
+    );
+    assert_eq!(full.entities[1], upd.entities[0]);
+    assert_eq!(full.entities[1].metadata[1].value, "1");
+    // A phrase re-colours the heat layer: no stale bytes survive it.
+    scene.set_query(Some(&cb));
+    let heat = SceneUpdate::decode(&scene.full_bytes(Layer::Heat, t2)[..]).unwrap();
+    assert_eq!(heat, scene.full_message(Layer::Heat, t2));
+}
