@@ -344,7 +344,11 @@ fn live_view_matches_map_query_for_early_and_late_clients_and_recordings_replay(
         "{summary}"
     );
     if mcap_ready() {
-        println!("{}", mcap_check(&rec, &expect));
+        // The live recording's heat layer follows the phrase the viewer client set: without the client,
+        // only the export (phrase given on the command line) can be checked.
+        if node {
+            println!("{}", mcap_check(&rec, &expect));
+        }
         let export = dir.path().join("export.mcap");
         let p = |x: &Path| x.as_os_str().to_owned();
         let out = run(&[
