@@ -17,8 +17,7 @@
 //! use latentbki::frame::{EncoderSettings, FrameEncoder, Resend};
 //! use latentbki::receiver::{Receiver, Sessions, Step};
 //! use latentbki::wire::{Message, SessionConfig, SummaryCodec, NO_FEATURE_SPACE};
-//! use latentbki::{EvictionSink, MapConfig, ObsStats, VoxelKey};
-//!
+//! use latentbki::{key::VoxelKey, obs::ObsStats, sink::EvictionSink, MapConfig};
 //! const D: usize = 8;
 //! let config = SessionConfig::new(&MapConfig::DEFAULT, D, SummaryCodec::DEFAULT, NO_FEATURE_SPACE);
 //! // A robot (id 1, session 7) that keeps frames until they are acknowledged.
