@@ -303,14 +303,25 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         features: &[[f32; D]],
         sink: &mut S,
     ) -> usize {
+        self.add_paired(pose, points, features, |m, p, y| m.add_point(p, y, sink))
+    }
+
+    /// Each point through `pose` into `add` with its feature; returns how many were taken. A refusal is
+    /// counted in `rejections` by `add`; a point without a feature (or a feature without a point) is
+    /// counted here, never silently dropped.
+    fn add_paired<F>(
+        &mut self,
+        pose: &Isometry3<f32>,
+        points: &[[f32; 3]],
+        features: &[F],
+        mut add: impl FnMut(&mut Self, [f32; 3], &F) -> Result<(), Rejection>,
+    ) -> usize {
         let mut taken = 0;
         for (p, y) in points.iter().zip(features) {
-            // A refusal is counted in `rejections`.
-            if self.add_point(to_map_frame(pose, *p), y, sink).is_ok() {
+            if add(self, to_map_frame(pose, *p), y).is_ok() {
                 taken += 1;
             }
         }
-        // A point without a feature (or a feature without a point) is counted, never silently dropped.
         for _ in 0..points.len().abs_diff(features.len()) {
             self.rejections.count(Rejection::Unpaired);
         }
@@ -436,16 +447,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         codes: &[[i8; D]],
         sink: &mut S,
     ) -> usize {
-        let mut taken = 0;
-        for (p, c) in points.iter().zip(codes) {
-            if self.add_point_i8(to_map_frame(pose, *p), c, sink).is_ok() {
-                taken += 1;
-            }
-        }
-        for _ in 0..points.len().abs_diff(codes.len()) {
-            self.rejections.count(Rejection::Unpaired);
-        }
-        taken
+        self.add_paired(pose, points, codes, |m, p, c| m.add_point_i8(p, c, sink))
     }
 
     /// Add one point with an int8 feature whose voxel the caller found (e.g. an integer sensor point
