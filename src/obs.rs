@@ -222,7 +222,7 @@ impl<const D: usize> CodeSums<D> {
 /// n·Σc² − (Σc)² = n·S in code units, exact: with n ≤ [`CODE_SUMS_MAX_COUNT`] both terms are below 2³¹
 /// (wrapping arithmetic only so that no overflow check is linked; it cannot wrap). Never negative.
 #[inline(always)]
-fn scatter_numerator(n: u32, sum: i32, squares: u32) -> u32 {
+pub(crate) fn scatter_numerator(n: u32, sum: i32, squares: u32) -> u32 {
     n.wrapping_mul(squares)
         .wrapping_sub(sum.wrapping_mul(sum) as u32)
 }

@@ -17,6 +17,9 @@
 use crate::obs::ObsStats;
 use half::f16;
 
+mod fixed;
+pub use fixed::Int8Fix;
+
 // Widths measured on the 400-frame tile run (host-sim/tests/local_map_accuracy.rs: μ RMS, Ψ p95 with the
 // default / a weak prior) and on the streaming tests' PCA features (μ RMS against the f32 reference), bytes
 // per voxel with slot and index:

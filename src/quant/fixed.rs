@@ -1,0 +1,304 @@
+//! Cooling int8 sums into a voxel's compact codes in fixed point: no float arithmetic, so an MCU without an
+//! FPU (thumbv6m, riscv32imac) does not run software float for it.
+//!
+//! Why: a hot voxel fed int8 codes holds exact integer sums ([`CodeSums`]); when it cools, those sums are
+//! merged (Chan's formula) into the statistics its [`QuantVoxel`] codes stand for, and re-encoded. Done in
+//! f32 that is ≈ 16 float operations per dimension — ≈ 70,000 instructions per cooling on riscv32imac and
+//! ≈ 130,000 on thumbv6m in library calls. Here the same merge runs in integers, in units of the int8
+//! scale s (a code step): means as i32 with [`MEAN_FRAC`] fraction bits (|m| ≤ 160 steps), scatters as u64
+//! on a per-voxel power-of-two unit, and only the final codes go through the f32 bit layout (built from
+//! integers, never computed in float), so the codes mean exactly what [`QuantVoxel::decode`] reads.
+//!
+//! The codes are the same as the f32 path's to within the rounding of the last code step (stochastic
+//! rounding with the same dither stream); the constants that depend on s alone are prepared in float once,
+//! when the scale is set ([`Int8Fix::new`]).
+
+use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
+use crate::obs::{scatter_numerator, CodeSums};
+use half::f16;
+
+/// Fraction bits of a mean in code steps (|m| ≤ 160 steps → < 2²².)
+const MEAN_FRAC: i32 = 14;
+
+/// A positive number as m · 2^e with m in [2²³, 2²⁴) (an f32's mantissa and exponent), or zero (m = 0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Parts {
+    m: u32,
+    e: i32,
+}
+
+impl Parts {
+    const ZERO: Self = Self { m: 0, e: 0 };
+
+    /// From an f32's bits (zero, subnormal, negative and non-finite values give zero).
+    fn of_bits(bits: u32) -> Self {
+        let biased = (bits >> 23) as i32;
+        if bits >> 31 != 0 || biased == 0 || biased == 255 {
+            return Self::ZERO;
+        }
+        Self {
+            m: (bits & 0x7F_FFFF) | 0x80_0000,
+            e: biased - 150,
+        }
+    }
+}
+
+/// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2⁶² when shifting left.
+#[inline]
+fn shift(p: u64, sh: i32) -> u64 {
+    if p == 0 {
+        0
+    } else if sh >= 0 {
+        if sh >= 62 || p.leading_zeros() < 2 + sh as u32 {
+            1 << 62
+        } else {
+            p << sh
+        }
+    } else {
+        let r = (-sh) as u32;
+        if r >= 64 {
+            0
+        } else {
+            (p >> (r - 1)).div_ceil(2)
+        }
+    }
+}
+
+/// The f32 bit pattern of `v · 2^e` (v > 0), mantissa truncated; 0 if it underflows, f32::MAX if too big.
+#[inline]
+fn f32_bits(v: u64, e: i32) -> u32 {
+    if v == 0 {
+        return 0;
+    }
+    let lz = v.leading_zeros() as i32;
+    // v = mant · 2^(40 − lz) with mant in [2²³, 2²⁴).
+    let mant = ((v << lz) >> 40) as u32;
+    let biased = e + (40 - lz) + 150;
+    if biased <= 0 {
+        0
+    } else if biased >= 255 {
+        f32::MAX.to_bits()
+    } else {
+        ((biased as u32) << 23) | (mant & 0x7F_FFFF)
+    }
+}
+
+/// An f32 that holds a whole number (a voxel's point count) as an integer, without a float operation.
+#[inline]
+fn count_of(bits: u32) -> u32 {
+    let p = Parts::of_bits(bits);
+    shift(u64::from(p.m), p.e).min(u64::from(u32::MAX)) as u32
+}
+
+/// The int8 scale s in the integer forms the fixed-point cooling needs (prepared in float once, when the
+/// scale is set — not per point).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Int8Fix {
+    s: Parts,
+    inv_s: Parts,
+    s2: Parts,
+    inv_s2: Parts,
+}
+
+impl Int8Fix {
+    /// No scale (cooling int8 sums gives empty codes; the map refuses int8 points then).
+    pub const NONE: Self = Self {
+        s: Parts::ZERO,
+        inv_s: Parts::ZERO,
+        s2: Parts::ZERO,
+        inv_s2: Parts::ZERO,
+    };
+
+    /// The forms of a valid scale (finite, > 0).
+    pub fn new(scale: f32) -> Self {
+        let s2 = scale * scale;
+        Self {
+            s: Parts::of_bits(scale.to_bits()),
+            inv_s: Parts::of_bits((1.0 / scale).to_bits()),
+            s2: Parts::of_bits(s2.to_bits()),
+            inv_s2: Parts::of_bits((1.0 / s2).to_bits()),
+        }
+    }
+
+    /// An f16 mean scale σ in code steps, with [`MEAN_FRAC`] fraction bits.
+    fn steps_of(&self, sigma: f16) -> i32 {
+        let h = sigma.to_bits();
+        let (e16, f) = (i32::from((h >> 10) & 0x1F), u64::from(h & 0x3FF));
+        let (m, e) = match e16 {
+            0 => (f, -24),              // subnormal (or zero)
+            31 => return i32::MAX / 64, // never made by the encoder
+            _ => (f | 0x400, e16 - 25),
+        };
+        let v = shift(m * u64::from(self.inv_s.m), e + self.inv_s.e + MEAN_FRAC);
+        v.min(i32::MAX as u64 / 64) as i32
+    }
+}
+
+impl<const D: usize, const P: usize> QuantVoxel<D, P> {
+    /// These codes merged with int8 sums of scale `fix` (Chan's formula) and re-encoded, in integers: what
+    /// [`Self::reencode`] of the decoded codes merged with [`CodeSums::to_obs`] gives, to the rounding of the
+    /// last code step. Keeps the mean's scale when it still fits, as [`Self::reencode`] does.
+    pub fn merge_codes_fixed(&self, sums: &CodeSums<D>, fix: &Int8Fix, dither: &mut Dither) -> Self {
+        let n1 = sums.count;
+        if n1 == 0 || fix.s.m == 0 {
+            return *self;
+        }
+        let n0 = count_of(self.count.to_bits());
+        let n = n0.saturating_add(n1);
+        let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
+        let mut mu = [0u8; D];
+        super::unpack(mu_part, MU_BITS, &mut mu);
+        let sigma = if n0 > 0 {
+            fix.steps_of(self.mu_scale)
+        } else {
+            0
+        };
+
+        // ---- means (code steps, MEAN_FRAC fraction bits): m = m₀ + (Σc − n₁m₀)/n; d = Σc/n₁ − m₀.
+        let mut mean = [0i32; D];
+        let mut diff = [0i32; D];
+        let mut max_abs = 0i32;
+        let half_n = (n / 2) as i32;
+        let n_i = n.min(i32::MAX as u32) as i32;
+        for (((m, dd), &q), &sum) in mean.iter_mut().zip(&mut diff).zip(&mu).zip(&sums.sum) {
+            let q = (i32::from(q) << (32 - MU_BITS)) >> (32 - MU_BITS);
+            let m0 = q.wrapping_mul(sigma);
+            let x = (sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0));
+            let delta = x.wrapping_add(half_n).checked_div_euclid(n_i).unwrap_or(0);
+            *m = m0.wrapping_add(delta);
+            *dd = x
+                .wrapping_add((n1 / 2) as i32)
+                .checked_div_euclid(n1 as i32)
+                .unwrap_or(0);
+            max_abs = max_abs.max(m.unsigned_abs().min(i32::MAX as u32) as i32);
+        }
+
+        // ---- the mean's scale: kept while it fits (as `reencode`), else max|m|·1.25/q_max rounded up in f16.
+        let qmax = MU_QMAX;
+        let keep = sigma > 0
+            && max_abs <= sigma.saturating_mul(qmax)
+            && max_abs.saturating_mul(4) >= sigma.saturating_mul(qmax);
+        let (mu_scale, sigma) = if keep {
+            (self.mu_scale, sigma)
+        } else if max_abs == 0 {
+            (f16::ZERO, 0)
+        } else {
+            // max·1.25/63 · s: 1.25/63 ≈ 332,881 · 2⁻²⁴.
+            let v = u64::from(max_abs.unsigned_abs()) * 332_881;
+            let lz = v.leading_zeros() as i32;
+            let top = (v << lz) >> 32; // v ≈ top · 2^(32 − lz)
+            let bits = f32_bits(
+                top * u64::from(fix.s.m),
+                32 - lz - 24 - MEAN_FRAC + fix.s.e,
+            );
+            let mut s = f16::from_f32(f32::from_bits(bits));
+            let mut sig = fix.steps_of(s);
+            if sig.saturating_mul(qmax) < max_abs {
+                s = f16::from_bits(s.to_bits() + 1);
+                sig = fix.steps_of(s);
+            }
+            (s, sig)
+        };
+
+        // ---- scatters on a unit of c²·2^(g − 32), g chosen so n·127² fits in u64 with room to spare.
+        let g = (32 - n.leading_zeros() as i32 - 14).max(0);
+        // n₀n₁/n with 8 fraction bits (≤ 255 · 2⁸), and 2³²/n₁.
+        let w = ((u64::from(n0) * u64::from(n1)) << 8) / u64::from(n.max(1));
+        let r1 = (1u64 << 32) / u64::from(n1);
+        let base_old = u32::from(self.psi_base);
+        let mut psi = [0u8; D];
+        super::unpack(psi_part, super::PSI_BITS, &mut psi);
+        let mut scatter = [0u32; D];
+        let mut psi_max_bits = 0u32;
+        for (((s_out, (&c, &d)), &sum), &sq) in scatter
+            .iter_mut()
+            .zip(psi.iter().zip(&diff))
+            .zip(&sums.sum)
+            .zip(&sums.squares)
+        {
+            // The old scatter: its minifloat in code steps².
+            let old = if n0 > 0 {
+                let p = Parts::of_bits((u32::from(c) + base_old) << PSI_SHIFT);
+                shift(
+                    u64::from(p.m) * u64::from(fix.inv_s2.m),
+                    p.e + fix.inv_s2.e + 32 - g,
+                )
+            } else {
+                0
+            };
+            // The sums' own scatter: (n₁Σc² − (Σc)²)/n₁, exact numerator.
+            let within = (u64::from(scatter_numerator(n1, sum, sq)) * r1) >> g;
+            // Between the two means: n₀n₁/n · d² (d with MEAN_FRAC bits: d² has 28, w 8 → 2⁻³⁶).
+            let d2 = u64::from(d.unsigned_abs()) * u64::from(d.unsigned_abs());
+            let between = shift(d2.saturating_mul(w), -(4 + g));
+            let total = old.saturating_add(within).saturating_add(between);
+            // Its f32 bits: total · 2^(g − 32) · s².
+            let lz = total.leading_zeros() as i32;
+            let top = if total == 0 { 0 } else { (total << lz) >> 32 };
+            let bits = f32_bits(
+                top * u64::from(fix.s2.m),
+                32 - lz + g - 32 + fix.s2.e,
+            );
+            *s_out = bits;
+            psi_max_bits = psi_max_bits.max(bits);
+        }
+        let psi_max_bits = psi_max_bits.min(f32::MAX.to_bits());
+        let top = (psi_max_bits >> PSI_SHIFT) + 1;
+        let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
+
+        // ---- codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3: the next).
+        let base = i32::from(psi_base);
+        let mu_code = |m: i32, dither: u32| -> u8 {
+            // m/σ to 1/256 of a step, plus a dither below one step, floored: stochastic rounding.
+            let u = (m << 8)
+                .wrapping_add(sigma / 2)
+                .checked_div_euclid(sigma)
+                .unwrap_or(0);
+            let q = (u + (dither & 0xFF) as i32) >> 8;
+            q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
+        };
+        let psi_code = |bits: u32, dither: u32| -> u8 {
+            (psi_key(f32::from_bits(bits), dither as u8) as i32 - base).clamp(0, PSI_CODE_MAX as i32)
+                as u8
+        };
+        let mut mu_codes = [0u8; D];
+        let mut psi_codes = [0u8; D];
+        for (((m, p), mc), pc) in mean
+            .chunks_exact(2)
+            .zip(scatter.chunks_exact(2))
+            .zip(mu_codes.chunks_exact_mut(2))
+            .zip(psi_codes.chunks_exact_mut(2))
+        {
+            let d = dither.next();
+            mc[0] = mu_code(m[0], d);
+            pc[0] = psi_code(p[0], d >> 8);
+            mc[1] = mu_code(m[1], d >> 16);
+            pc[1] = psi_code(p[1], d >> 24);
+        }
+        if D % 2 == 1 {
+            let d = dither.next();
+            if let (Some(mc), Some(pc), Some(&m), Some(&p)) = (
+                mu_codes.last_mut(),
+                psi_codes.last_mut(),
+                mean.last(),
+                scatter.last(),
+            ) {
+                *mc = mu_code(m, d);
+                *pc = psi_code(p, d >> 8);
+            }
+        }
+        let mut codes = [0u8; P];
+        let (mu_out, psi_out) = codes.split_at_mut(super::section_len(D, MU_BITS));
+        super::pack(&mu_codes, MU_BITS, mu_out);
+        super::pack(&psi_codes, super::PSI_BITS, psi_out);
+        Self {
+            count: f32::from_bits(f32_bits(u64::from(n), 0)),
+            mu_scale,
+            psi_base,
+            codes,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

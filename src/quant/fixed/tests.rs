@@ -1,0 +1,136 @@
+use super::*;
+use crate::obs::ObsStats;
+
+extern crate std;
+
+const D: usize = 16;
+const P: usize = super::super::packed_len(D);
+const S: f32 = 0.0123;
+
+struct Rng(u32);
+impl Rng {
+    fn next(&mut self) -> u32 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 17;
+        self.0 ^= self.0 << 5;
+        self.0
+    }
+    /// Codes around a per-dimension offset.
+    fn sums(&mut self, n: u32, offset: i32) -> CodeSums<D> {
+        let mut c = CodeSums::EMPTY;
+        for _ in 0..n {
+            let codes: [i8; D] = core::array::from_fn(|d| {
+                let spread = (self.next() % 41) as i32 - 20;
+                (spread + offset + 5 * d as i32 - 40).clamp(-127, 127) as i8
+            });
+            c.add(&codes);
+        }
+        c
+    }
+}
+
+#[test]
+fn integer_helpers_match_f32() {
+    for v in [1.0f32, 3.0, 255.0, 1000.0, 16_777_215.0] {
+        assert_eq!(count_of(v.to_bits()), v as u32);
+        assert_eq!(f32_bits(v as u64, 0), v.to_bits());
+    }
+    assert_eq!(count_of(0.0f32.to_bits()), 0);
+    assert_eq!(f32_bits(0, 5), 0);
+    assert_eq!(f32_bits(3, -2), 0.75f32.to_bits());
+    assert_eq!(f32_bits(1, 200), f32::MAX.to_bits());
+    assert_eq!(shift(5, -1), 3);
+    assert_eq!(shift(1, 70), 1 << 62);
+    let fix = Int8Fix::new(S);
+    // σ = 0.5 (an f16 exactly) is 0.5/S steps.
+    let steps = fix.steps_of(f16::from_f32(0.5));
+    let want = 0.5 / S * (1 << MEAN_FRAC) as f32;
+    assert!((steps as f32 - want).abs() <= 1.0, "{steps} vs {want}");
+}
+
+/// The fixed-point cooling gives what the f32 path gives, to the last code step's rounding: first visits
+/// and merges into codes of earlier visits, many voxels.
+#[test]
+fn fixed_cooling_matches_the_f32_path() {
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(0x2468_ACE1);
+    let (mut df, mut dx) = (Dither::new(9), Dither::new(9));
+    let (mut worst_mu, mut worst_psi) = (0.0f32, 0.0f32);
+    for trial in 0..400 {
+        let old_n = [0, 1, 3, 40, 1000][trial % 5];
+        let offset = (rng.next() % 120) as i32 - 60;
+        let old_obs = if old_n == 0 {
+            ObsStats::EMPTY
+        } else {
+            rng.sums(old_n.min(255), offset).to_obs(S)
+        };
+        let mut old_obs = old_obs;
+        old_obs.count = old_n as f32;
+        let old = QuantVoxel::<D, P>::encode(&old_obs, &mut Dither::new(3));
+        let (n1, shift_by) = (1 + rng.next() % 255, (rng.next() % 21) as i32 - 10);
+        let sums = rng.sums(n1, offset + shift_by);
+
+        let mut want = old.decode();
+        want.merge(&sums.to_obs(S));
+        let float = old.reencode(&want, &mut df).decode();
+        let fixed = old.merge_codes_fixed(&sums, &fix, &mut dx).decode();
+
+        assert_eq!(fixed.count, float.count, "trial {trial}");
+        let step = want.mean.iter().fold(0.0f32, |a, m| a.max(m.abs())) * 1.25 / 63.0;
+        for d in 0..D {
+            // Each within ~one code step of the exact merge (stochastic rounding lands on a neighbour).
+            let e = (fixed.mean[d] - want.mean[d]).abs() / step;
+            worst_mu = worst_mu.max(e);
+            assert!(e <= 1.3, "trial {trial} mean[{d}]: {} vs {}", fixed.mean[d], want.mean[d]);
+            if want.scatter[d] > want.scatter.iter().fold(0.0f32, |a, &b| a.max(b)) * 1e-2 {
+                let r = fixed.scatter[d] / want.scatter[d];
+                worst_psi = worst_psi.max((r - 1.0).abs());
+                assert!(r > 0.78 && r < 1.28, "trial {trial} scatter[{d}]: {r}");
+            }
+        }
+    }
+    std::println!("worst mean error {worst_mu:.2} steps, worst scatter ratio off by {worst_psi:.2}");
+}
+
+/// A voxel cooled hundreds of times (a few points per visit) keeps its mean and scatter no worse than the
+/// f32 path: no drift from the integer rounding.
+#[test]
+fn many_coolings_do_not_drift() {
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(77);
+    let mut dither = Dither::new(5);
+    let mut code = QuantVoxel::<D, P>::EMPTY;
+    let mut truth = ObsStats::<D>::EMPTY;
+    let mut float = QuantVoxel::<D, P>::EMPTY;
+    for _ in 0..600 {
+        let n1 = 1 + rng.next() % 4;
+        let sums = rng.sums(n1, 30);
+        truth.merge(&sums.to_obs(S));
+        code = code.merge_codes_fixed(&sums, &fix, &mut dither);
+        let mut f = float.decode();
+        f.merge(&sums.to_obs(S));
+        float = float.reencode(&f, &mut dither);
+    }
+    let rel = |q: &QuantVoxel<D, P>| {
+        let b = q.decode();
+        let e: f32 = (0..D).map(|d| (b.mean[d] - truth.mean[d]).powi(2)).sum::<f32>().sqrt();
+        e / truth.mean.iter().map(|m| m * m).sum::<f32>().sqrt()
+    };
+    std::println!("after 600 coolings: mean error fixed {:.4}, f32 path {:.4}", rel(&code), rel(&float));
+    let back = code.decode();
+    assert_eq!(back.count, truth.count);
+    // Stochastic rounding at every cooling is a random walk of the stored mean (the f32 path's too): the
+    // integer path walks no farther.
+    let (fixed, in_f32) = (rel(&code), rel(&float));
+    assert!(fixed <= (1.25 * in_f32).max(0.02), "mean drifted: {fixed} (f32 path {in_f32})");
+    // The scatter random-walks too (its codes are 19 % steps): RMS of ln(stored/exact) over the dimensions
+    // no larger than the f32 path's, give or take.
+    let fb = float.decode();
+    let walk = |b: &ObsStats<D>| {
+        let sq: f32 = (0..D).map(|d| libm::logf(b.scatter[d] / truth.scatter[d]).powi(2)).sum();
+        libm::sqrtf(sq / D as f32)
+    };
+    let (fixed, in_f32) = (walk(&back), walk(&fb));
+    std::println!("scatter walk: fixed {fixed:.3}, f32 path {in_f32:.3}");
+    assert!(fixed <= 1.5 * in_f32 + 0.05, "scatter drifted: {fixed} (f32 path {in_f32})");
+}
