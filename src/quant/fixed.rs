@@ -1,17 +1,24 @@
-//! Cooling int8 sums into a voxel's compact codes in fixed point: no float arithmetic, so an MCU without an
-//! FPU (thumbv6m, riscv32imac) does not run software float for it.
+//! Cooling int8 sums into a voxel's compact codes in fixed point: no float arithmetic, for an MCU without
+//! an FPU (thumbv6m, riscv32imac), where the f32 cooling runs in software float.
 //!
 //! Why: a hot voxel fed int8 codes holds exact integer sums ([`CodeSums`]); when it cools, those sums are
-//! merged (Chan's formula) into the statistics its [`QuantVoxel`] codes stand for, and re-encoded. Done in
-//! f32 that is ≈ 16 float operations per dimension — ≈ 70,000 instructions per cooling on riscv32imac and
-//! ≈ 130,000 on thumbv6m in library calls. Here the same merge runs in integers, in units of the int8
+//! merged (Chan's formula) into the statistics its [`QuantVoxel`] codes stand for and re-encoded. In f32
+//! that is ≈ 16 float operations per dimension: ≈ 70,000 instructions per cooling on riscv32imac and
+//! ≈ 130,000 on thumbv6m, in library calls. Here the same merge runs in integers, in units of the int8
 //! scale s (a code step): means as i32 with [`MEAN_FRAC`] fraction bits (|m| ≤ 160 steps), scatters as u64
-//! on a per-voxel power-of-two unit, and only the final codes go through the f32 bit layout (built from
-//! integers, never computed in float), so the codes mean exactly what [`QuantVoxel::decode`] reads.
+//! on a per-voxel power-of-two unit; only the final codes go through the f32 bit layout (built from
+//! integers), so they mean exactly what [`QuantVoxel::decode`] reads. The codes equal the f32 path's to
+//! the rounding of the last code step (tests: within 1.3 mean steps and 25 % of scatter on 400 merges;
+//! 600 coolings of one voxel walk no farther than the f32 path's).
 //!
-//! The codes are the same as the f32 path's to within the rounding of the last code step (stochastic
-//! rounding with the same dither stream); the constants that depend on s alone are prepared in float once,
-//! when the scale is set ([`Int8Fix::new`]).
+//! **Not yet wired into the local map**, because every target must cool the same way (the QEMU boards'
+//! UART streams are compared with one host twin) and, measured with `boards/measure.sh` with it wired in
+//! (`cool` calling it for int8 sums): riscv32imac i8 3,413 → 1,838 instructions per point (goal 2,000
+//! met), thumbv6m 5,136 → 4,145 (its divisions and 64-bit multiplies are library calls there), but the
+//! Cortex-M4F's i8 row 1,004 → 1,390 (its FPU does the f32 cooling cheaper) and flash +5.7 KB on every
+//! target (riscv32imac 62,758 → 71,122 B, over the 64 KiB goal). Before it is wired: 32-bit scatter
+//! terms on a per-voxel block exponent (no u64 products or shifts), reciprocals instead of two divisions
+//! per dimension, loops kept rolled.
 
 use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
 use crate::obs::{scatter_numerator, CodeSums};
@@ -138,7 +145,12 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// These codes merged with int8 sums of scale `fix` (Chan's formula) and re-encoded, in integers: what
     /// [`Self::reencode`] of the decoded codes merged with [`CodeSums::to_obs`] gives, to the rounding of the
     /// last code step. Keeps the mean's scale when it still fits, as [`Self::reencode`] does.
-    pub fn merge_codes_fixed(&self, sums: &CodeSums<D>, fix: &Int8Fix, dither: &mut Dither) -> Self {
+    pub fn merge_codes_fixed(
+        &self,
+        sums: &CodeSums<D>,
+        fix: &Int8Fix,
+        dither: &mut Dither,
+    ) -> Self {
         let n1 = sums.count;
         if n1 == 0 || fix.s.m == 0 {
             return *self;
@@ -187,10 +199,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let v = u64::from(max_abs.unsigned_abs()) * 332_881;
             let lz = v.leading_zeros() as i32;
             let top = (v << lz) >> 32; // v ≈ top · 2^(32 − lz)
-            let bits = f32_bits(
-                top * u64::from(fix.s.m),
-                32 - lz - 24 - MEAN_FRAC + fix.s.e,
-            );
+            let bits = f32_bits(top * u64::from(fix.s.m), 32 - lz - 24 - MEAN_FRAC + fix.s.e);
             let mut s = f16::from_f32(f32::from_bits(bits));
             let mut sig = fix.steps_of(s);
             if sig.saturating_mul(qmax) < max_abs {
@@ -235,10 +244,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             // Its f32 bits: total · 2^(g − 32) · s².
             let lz = total.leading_zeros() as i32;
             let top = if total == 0 { 0 } else { (total << lz) >> 32 };
-            let bits = f32_bits(
-                top * u64::from(fix.s2.m),
-                32 - lz + g - 32 + fix.s2.e,
-            );
+            let bits = f32_bits(top * u64::from(fix.s2.m), 32 - lz + g - 32 + fix.s2.e);
             *s_out = bits;
             psi_max_bits = psi_max_bits.max(bits);
         }
@@ -258,8 +264,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
         };
         let psi_code = |bits: u32, dither: u32| -> u8 {
-            (psi_key(f32::from_bits(bits), dither as u8) as i32 - base).clamp(0, PSI_CODE_MAX as i32)
-                as u8
+            (psi_key(f32::from_bits(bits), dither as u8) as i32 - base)
+                .clamp(0, PSI_CODE_MAX as i32) as u8
         };
         let mut mu_codes = [0u8; D];
         let mut psi_codes = [0u8; D];

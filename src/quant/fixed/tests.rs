@@ -81,7 +81,12 @@ fn fixed_cooling_matches_the_f32_path() {
             // Each within ~one code step of the exact merge (stochastic rounding lands on a neighbour).
             let e = (fixed.mean[d] - want.mean[d]).abs() / step;
             worst_mu = worst_mu.max(e);
-            assert!(e <= 1.3, "trial {trial} mean[{d}]: {} vs {}", fixed.mean[d], want.mean[d]);
+            assert!(
+                e <= 1.3,
+                "trial {trial} mean[{d}]: {} vs {}",
+                fixed.mean[d],
+                want.mean[d]
+            );
             if want.scatter[d] > want.scatter.iter().fold(0.0f32, |a, &b| a.max(b)) * 1e-2 {
                 let r = fixed.scatter[d] / want.scatter[d];
                 worst_psi = worst_psi.max((r - 1.0).abs());
@@ -89,7 +94,9 @@ fn fixed_cooling_matches_the_f32_path() {
             }
         }
     }
-    std::println!("worst mean error {worst_mu:.2} steps, worst scatter ratio off by {worst_psi:.2}");
+    std::println!(
+        "worst mean error {worst_mu:.2} steps, worst scatter ratio off by {worst_psi:.2}"
+    );
 }
 
 /// A voxel cooled hundreds of times (a few points per visit) keeps its mean and scatter no worse than the
@@ -113,24 +120,39 @@ fn many_coolings_do_not_drift() {
     }
     let rel = |q: &QuantVoxel<D, P>| {
         let b = q.decode();
-        let e: f32 = (0..D).map(|d| (b.mean[d] - truth.mean[d]).powi(2)).sum::<f32>().sqrt();
+        let e: f32 = (0..D)
+            .map(|d| (b.mean[d] - truth.mean[d]).powi(2))
+            .sum::<f32>()
+            .sqrt();
         e / truth.mean.iter().map(|m| m * m).sum::<f32>().sqrt()
     };
-    std::println!("after 600 coolings: mean error fixed {:.4}, f32 path {:.4}", rel(&code), rel(&float));
+    std::println!(
+        "after 600 coolings: mean error fixed {:.4}, f32 path {:.4}",
+        rel(&code),
+        rel(&float)
+    );
     let back = code.decode();
     assert_eq!(back.count, truth.count);
     // Stochastic rounding at every cooling is a random walk of the stored mean (the f32 path's too): the
     // integer path walks no farther.
     let (fixed, in_f32) = (rel(&code), rel(&float));
-    assert!(fixed <= (1.25 * in_f32).max(0.02), "mean drifted: {fixed} (f32 path {in_f32})");
+    assert!(
+        fixed <= (1.25 * in_f32).max(0.02),
+        "mean drifted: {fixed} (f32 path {in_f32})"
+    );
     // The scatter random-walks too (its codes are 19 % steps): RMS of ln(stored/exact) over the dimensions
     // no larger than the f32 path's, give or take.
     let fb = float.decode();
     let walk = |b: &ObsStats<D>| {
-        let sq: f32 = (0..D).map(|d| libm::logf(b.scatter[d] / truth.scatter[d]).powi(2)).sum();
+        let sq: f32 = (0..D)
+            .map(|d| libm::logf(b.scatter[d] / truth.scatter[d]).powi(2))
+            .sum();
         libm::sqrtf(sq / D as f32)
     };
     let (fixed, in_f32) = (walk(&back), walk(&fb));
     std::println!("scatter walk: fixed {fixed:.3}, f32 path {in_f32:.3}");
-    assert!(fixed <= 1.5 * in_f32 + 0.05, "scatter drifted: {fixed} (f32 path {in_f32})");
+    assert!(
+        fixed <= 1.5 * in_f32 + 0.05,
+        "scatter drifted: {fixed} (f32 path {in_f32})"
+    );
 }
