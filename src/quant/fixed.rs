@@ -145,6 +145,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// These codes merged with int8 sums of scale `fix` (Chan's formula) and re-encoded, in integers: what
     /// [`Self::reencode`] of the decoded codes merged with [`CodeSums::to_obs`] gives, to the rounding of the
     /// last code step. Keeps the mean's scale when it still fits, as [`Self::reencode`] does.
+    ///
+    /// Three passes over the dimensions: the merged means (and the distance between the two means), the
+    /// merged scatters (as the f32 bit patterns of their values), then the codes with the dither stream
+    /// `reencode` uses. Every product fits its width by the bounds of int8 codes (|Σc| ≤ 255·127).
+    #[inline(never)]
     pub fn merge_codes_fixed(
         &self,
         sums: &CodeSums<D>,
@@ -156,36 +161,36 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             return *self;
         }
         let n0 = count_of(self.count.to_bits());
-        let n = n0.saturating_add(n1);
+        let n = n0.saturating_add(n1).min(1 << 30);
         let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
         let mut mu = [0u8; D];
+        let mut psi = [0u8; D];
         super::unpack(mu_part, MU_BITS, &mut mu);
+        super::unpack(psi_part, super::PSI_BITS, &mut psi);
         let sigma = if n0 > 0 {
             fix.steps_of(self.mu_scale)
         } else {
             0
         };
 
-        // ---- means (code steps, MEAN_FRAC fraction bits): m = m₀ + (Σc − n₁m₀)/n; d = Σc/n₁ − m₀.
+        // ---- pass 1, means in code steps (MEAN_FRAC fraction bits): with x = Σc − n₁m₀, the merged mean
+        // is m₀ + x/n and the new points' mean is m₀ + x/n₁ (d = x/n₁). Divisions by reciprocals (2³²/n).
+        let recip = |k: u32| -> i64 { ((1u64 << 32) / u64::from(k.max(1))) as i64 };
+        let (rn, rn1) = (recip(n), recip(n1));
         let mut mean = [0i32; D];
         let mut diff = [0i32; D];
-        let mut max_abs = 0i32;
-        let half_n = (n / 2) as i32;
-        let n_i = n.min(i32::MAX as u32) as i32;
+        let mut max_abs = 0u32;
         for (((m, dd), &q), &sum) in mean.iter_mut().zip(&mut diff).zip(&mu).zip(&sums.sum) {
             let q = (i32::from(q) << (32 - MU_BITS)) >> (32 - MU_BITS);
             let m0 = q.wrapping_mul(sigma);
-            let x = (sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0));
-            let delta = x.wrapping_add(half_n).checked_div_euclid(n_i).unwrap_or(0);
-            *m = m0.wrapping_add(delta);
-            *dd = x
-                .wrapping_add((n1 / 2) as i32)
-                .checked_div_euclid(n1 as i32)
-                .unwrap_or(0);
-            max_abs = max_abs.max(m.unsigned_abs().min(i32::MAX as u32) as i32);
+            let x = i64::from((sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0)));
+            *m = m0.wrapping_add(((x * rn + (1 << 31)) >> 32) as i32);
+            *dd = ((x * rn1 + (1 << 31)) >> 32) as i32;
+            max_abs = max_abs.max(m.unsigned_abs());
         }
 
         // ---- the mean's scale: kept while it fits (as `reencode`), else max|m|·1.25/q_max rounded up in f16.
+        let max_abs = max_abs.min(1 << 24) as i32;
         let qmax = MU_QMAX;
         let keep = sigma > 0
             && max_abs <= sigma.saturating_mul(qmax)
@@ -195,8 +200,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         } else if max_abs == 0 {
             (f16::ZERO, 0)
         } else {
-            // max·1.25/63 · s: 1.25/63 ≈ 332,881 · 2⁻²⁴.
-            let v = u64::from(max_abs.unsigned_abs()) * 332_881;
+            // max·1.25/63 · s, with 1.25/63 ≈ 332,881 · 2⁻²⁴.
+            let v = max_abs as u64 * 332_881;
             let lz = v.leading_zeros() as i32;
             let top = (v << lz) >> 32; // v ≈ top · 2^(32 − lz)
             let bits = f32_bits(top * u64::from(fix.s.m), 32 - lz - 24 - MEAN_FRAC + fix.s.e);
@@ -209,57 +214,72 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             (s, sig)
         };
 
-        // ---- scatters on a unit of c²·2^(g − 32), g chosen so n·127² fits in u64 with room to spare.
-        let g = (32 - n.leading_zeros() as i32 - 14).max(0);
-        // n₀n₁/n with 8 fraction bits (≤ 255 · 2⁸), and 2³²/n₁.
-        let w = ((u64::from(n0) * u64::from(n1)) << 8) / u64::from(n.max(1));
-        let r1 = (1u64 << 32) / u64::from(n1);
+        // ---- pass 2, scatters in units of c²·2^g, g chosen so that n·127²·1.25 < 2³¹; each ends as the
+        // f32 bit pattern of its value (what the minifloat codes are cut from).
+        let g = (32 - n.leading_zeros() as i32) - 16;
+        let w = ((u64::from(n0) * u64::from(n1)) << 8) / u64::from(n); // n₀n₁/n, 8 fraction bits
+        let r1 = (1u64 << 32) / u64::from(n1); // 2³²/n₁
+        let old_shift = fix.inv_s2.e - 129 - g; // minifloat 2^(E−129)·(4+f) → units, with 1/s²
         let base_old = u32::from(self.psi_base);
-        let mut psi = [0u8; D];
-        super::unpack(psi_part, super::PSI_BITS, &mut psi);
         let mut scatter = [0u32; D];
         let mut psi_max_bits = 0u32;
-        for (((s_out, (&c, &d)), &sum), &sq) in scatter
+        for ((((b, &c), &d), &sum), &sq) in scatter
             .iter_mut()
-            .zip(psi.iter().zip(&diff))
+            .zip(&psi)
+            .zip(&diff)
             .zip(&sums.sum)
             .zip(&sums.squares)
         {
-            // The old scatter: its minifloat in code steps².
-            let old = if n0 > 0 {
-                let p = Parts::of_bits((u32::from(c) + base_old) << PSI_SHIFT);
-                shift(
-                    u64::from(p.m) * u64::from(fix.inv_s2.m),
-                    p.e + fix.inv_s2.e + 32 - g,
-                )
-            } else {
+            let k = u32::from(c) + base_old; // the old scatter's minifloat: exponent k/4, mantissa 1 + (k%4)/4
+            let old = if n0 == 0 || k < 4 {
                 0
+            } else {
+                let v = u64::from(4 + (k & 3)) * u64::from(fix.inv_s2.m);
+                let sh = (k >> 2) as i32 + old_shift;
+                if sh >= 0 {
+                    v << sh.min(8)
+                } else if sh > -64 {
+                    v >> -sh
+                } else {
+                    0
+                }
             };
-            // The sums' own scatter: (n₁Σc² − (Σc)²)/n₁, exact numerator.
-            let within = (u64::from(scatter_numerator(n1, sum, sq)) * r1) >> g;
-            // Between the two means: n₀n₁/n · d² (d with MEAN_FRAC bits: d² has 28, w 8 → 2⁻³⁶).
-            let d2 = u64::from(d.unsigned_abs()) * u64::from(d.unsigned_abs());
-            let between = shift(d2.saturating_mul(w), -(4 + g));
-            let total = old.saturating_add(within).saturating_add(between);
-            // Its f32 bits: total · 2^(g − 32) · s².
-            let lz = total.leading_zeros() as i32;
-            let top = if total == 0 { 0 } else { (total << lz) >> 32 };
-            let bits = f32_bits(top * u64::from(fix.s2.m), 32 - lz + g - 32 + fix.s2.e);
-            *s_out = bits;
-            psi_max_bits = psi_max_bits.max(bits);
+            let within = (u64::from(scatter_numerator(n1, sum, sq)) * r1) >> (32 + g);
+            let d2 = u64::from(d.unsigned_abs()).pow(2);
+            let between = (d2 * w) >> (36 + g); // d: 14 fraction bits, squared 28, w 8
+            let total = (old + within + between).min(u64::from(u32::MAX)) as u32;
+            // total · 2^g · s² as f32 bits: normalise, one 32×24-bit product, renormalise by one bit.
+            *b = if total == 0 {
+                0
+            } else {
+                let lz = total.leading_zeros() as i32;
+                let p = u64::from(total << lz) * u64::from(fix.s2.m); // in [2⁵⁴, 2⁵⁶)
+                let hi = (p >> 55) as i32; // 1 if the product reached 2⁵⁵
+                let mant = (p >> (31 + hi)) as u32;
+                let biased = 150 + 31 + hi + g - lz + fix.s2.e;
+                if biased <= 0 {
+                    0
+                } else if biased >= 255 {
+                    f32::MAX.to_bits()
+                } else {
+                    ((biased as u32) << 23) | (mant & 0x7F_FFFF)
+                }
+            };
+            psi_max_bits = psi_max_bits.max(*b);
         }
-        let psi_max_bits = psi_max_bits.min(f32::MAX.to_bits());
-        let top = (psi_max_bits >> PSI_SHIFT) + 1;
+        let top = (psi_max_bits.min(f32::MAX.to_bits()) >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
-        // ---- codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3: the next).
-        let base = i32::from(psi_base);
+        // ---- pass 3, codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3:
+        // the next). μ: m/σ by a reciprocal (2⁴⁰/σ) to 1/256 of a step, plus a dither below one step, floored.
+        let r_sigma = if sigma > 0 {
+            ((1i64 << 40) + i64::from(sigma / 2)) / i64::from(sigma)
+        } else {
+            0
+        };
+        let base = psi_base as i32;
         let mu_code = |m: i32, dither: u32| -> u8 {
-            // m/σ to 1/256 of a step, plus a dither below one step, floored: stochastic rounding.
-            let u = (m << 8)
-                .wrapping_add(sigma / 2)
-                .checked_div_euclid(sigma)
-                .unwrap_or(0);
+            let u = ((i64::from(m).wrapping_mul(r_sigma) + (1 << 31)) >> 32) as i32;
             let q = (u + (dither & 0xFF) as i32) >> 8;
             q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
         };
@@ -267,36 +287,31 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             (psi_key(f32::from_bits(bits), dither as u8) as i32 - base)
                 .clamp(0, PSI_CODE_MAX as i32) as u8
         };
-        let mut mu_codes = [0u8; D];
-        let mut psi_codes = [0u8; D];
-        for (((m, p), mc), pc) in mean
+        for (((m, b), mc), pc) in mean
             .chunks_exact(2)
             .zip(scatter.chunks_exact(2))
-            .zip(mu_codes.chunks_exact_mut(2))
-            .zip(psi_codes.chunks_exact_mut(2))
+            .zip(mu.chunks_exact_mut(2))
+            .zip(psi.chunks_exact_mut(2))
         {
             let d = dither.next();
             mc[0] = mu_code(m[0], d);
-            pc[0] = psi_code(p[0], d >> 8);
+            pc[0] = psi_code(b[0], d >> 8);
             mc[1] = mu_code(m[1], d >> 16);
-            pc[1] = psi_code(p[1], d >> 24);
+            pc[1] = psi_code(b[1], d >> 24);
         }
         if D % 2 == 1 {
             let d = dither.next();
-            if let (Some(mc), Some(pc), Some(&m), Some(&p)) = (
-                mu_codes.last_mut(),
-                psi_codes.last_mut(),
-                mean.last(),
-                scatter.last(),
-            ) {
+            if let (Some(mc), Some(pc), Some(&m), Some(&b)) =
+                (mu.last_mut(), psi.last_mut(), mean.last(), scatter.last())
+            {
                 *mc = mu_code(m, d);
-                *pc = psi_code(p, d >> 8);
+                *pc = psi_code(b, d >> 8);
             }
         }
         let mut codes = [0u8; P];
         let (mu_out, psi_out) = codes.split_at_mut(super::section_len(D, MU_BITS));
-        super::pack(&mu_codes, MU_BITS, mu_out);
-        super::pack(&psi_codes, super::PSI_BITS, psi_out);
+        super::pack(&mu, MU_BITS, mu_out);
+        super::pack(&psi, super::PSI_BITS, psi_out);
         Self {
             count: f32::from_bits(f32_bits(u64::from(n), 0)),
             mu_scale,
