@@ -90,9 +90,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge).
             (Acc::Float(o), false) => slot.codes = slot.codes.reencode(o, &mut self.dither),
-            (Acc::Codes(c), false) if c.count > 0 => {
-                c.write_obs(self.int8_scale, &mut self.scratch);
-                slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
+            // int8 sums merge into the codes in fixed point: no float operation (an MCU without an FPU).
+            (Acc::Codes(c), _) => {
+                slot.codes = slot
+                    .codes
+                    .merge_codes_fixed(c, &self.int8_fix, &mut self.dither)
             }
             (acc, seen) if !acc.is_empty() => {
                 if seen {

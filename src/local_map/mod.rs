@@ -33,7 +33,7 @@ use crate::config::{ConfigError, MapConfig, Prior};
 use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
 use crate::obs::{code_in_range, gather, ObsLookup, ObsStats};
-use crate::quant::{Dither, QuantVoxel};
+use crate::quant::{Dither, Int8Fix, QuantVoxel};
 use crate::sink::EvictionSink;
 use crate::stats::VoxelStats;
 use nalgebra::Isometry3;
@@ -147,6 +147,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     radius: i32,
     /// Scale of int8 features (y = scale · code); 0 = none set (int8 points are refused).
     int8_scale: f32,
+    /// The same scale in the integer forms the fixed-point cooling of int8 sums uses.
+    int8_fix: Int8Fix,
     dither: Dither,
     next_residency: u32,
     rejections: RejectionCounts,
@@ -188,6 +190,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         stranded: false,
         radius: 0,
         int8_scale: 0.0,
+        int8_fix: Int8Fix::NONE,
         dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {
@@ -235,6 +238,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.radius = radius as i32;
         self.stranded = false;
         self.int8_scale = 0.0;
+        self.int8_fix = Int8Fix::NONE;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
         Ok(())
@@ -414,6 +418,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             e.acc.make_float(old);
         }
         self.int8_scale = if scale_ok { scale } else { 0.0 };
+        self.int8_fix = if scale_ok {
+            Int8Fix::new(scale)
+        } else {
+            Int8Fix::NONE
+        };
         if scale_ok {
             Ok(())
         } else {

@@ -50,8 +50,9 @@ impl Parts {
     }
 }
 
-/// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2⁶² when shifting left.
-#[inline]
+/// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2⁶² when shifting left. (Not inlined:
+/// a 64-bit shift is long on a 32-bit MCU, and it runs a few times per cooling, not per dimension.)
+#[inline(never)]
 fn shift(p: u64, sh: i32) -> u64 {
     if p == 0 {
         0
@@ -72,7 +73,7 @@ fn shift(p: u64, sh: i32) -> u64 {
 }
 
 /// The f32 bit pattern of `v · 2^e` (v > 0), mantissa truncated; 0 if it underflows, f32::MAX if too big.
-#[inline]
+#[inline(never)]
 fn f32_bits(v: u64, e: i32) -> u32 {
     if v == 0 {
         return 0;
@@ -87,6 +88,29 @@ fn f32_bits(v: u64, e: i32) -> u32 {
         f32::MAX.to_bits()
     } else {
         ((biased as u32) << 23) | (mant & 0x7F_FFFF)
+    }
+}
+
+/// Code `i` of a section packed by [`super::pack`] (`width` ≤ 8 bits), read on its own: the loops here stay
+/// rolled (small code) instead of unpacking 8 codes at a time.
+#[inline(always)]
+fn code_at(data: &[u8], width: u32, i: usize) -> u32 {
+    let bit = i * width as usize;
+    let lo = u32::from(data.get(bit / 8).copied().unwrap_or(0));
+    let hi = u32::from(data.get(bit / 8 + 1).copied().unwrap_or(0));
+    ((lo | hi << 8) >> (bit % 8)) & ((1 << width) - 1)
+}
+
+/// Write code `i` into a zeroed section in [`super::pack`]'s layout.
+#[inline(always)]
+fn set_code(data: &mut [u8], width: u32, i: usize, code: u8) {
+    let bit = i * width as usize;
+    let v = u32::from(code) << (bit % 8);
+    if let Some(b) = data.get_mut(bit / 8) {
+        *b |= v as u8;
+    }
+    if let Some(b) = data.get_mut(bit / 8 + 1) {
+        *b |= (v >> 8) as u8;
     }
 }
 
@@ -128,6 +152,7 @@ impl Int8Fix {
     }
 
     /// An f16 mean scale σ in code steps, with [`MEAN_FRAC`] fraction bits.
+    #[inline(never)]
     fn steps_of(&self, sigma: f16) -> i32 {
         let h = sigma.to_bits();
         let (e16, f) = (i32::from((h >> 10) & 0x1F), u64::from(h & 0x3FF));
@@ -138,6 +163,90 @@ impl Int8Fix {
         };
         let v = shift(m * u64::from(self.inv_s.m), e + self.inv_s.e + MEAN_FRAC);
         v.min(i32::MAX as u64 / 64) as i32
+    }
+}
+
+/// One dimension's merged mean and the distance between the two means (both in code steps with
+/// [`MEAN_FRAC`] fraction bits), from the old mean code `q` on scale `sigma` (steps) and the sums' Σc: with
+/// x = Σc − n₁m₀ the merged mean is m₀ + x/n and d = x/n₁ (`rn`, `rn1`: 2³²/n, 2³²/n₁).
+#[inline(never)]
+fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: i64, rn1: i64) -> (i32, i32) {
+    let q = (q as i32) << (32 - MU_BITS) >> (32 - MU_BITS);
+    let m0 = q.wrapping_mul(sigma);
+    let x = i64::from((sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0)));
+    (
+        m0.wrapping_add(((x * rn + (1 << 31)) >> 32) as i32),
+        ((x * rn1 + (1 << 31)) >> 32) as i32,
+    )
+}
+
+/// One dimension's codes: μ = m/σ by the reciprocal `r_sigma` (2³²/σ) to 1/256 of a step, plus a dither
+/// below one step, floored (stochastic rounding); Ψ the minifloat key of `bits` less the voxel's `base`.
+/// Bytes 0 and 1 of `dither` serve μ and Ψ, as in [`QuantVoxel::reencode`].
+#[inline(never)]
+fn codes_of(m: i32, r_sigma: i64, bits: u32, base: i32, dither: u32) -> (u8, u8) {
+    let u = ((i64::from(m).wrapping_mul(r_sigma) + (1 << 23)) >> 24) as i32;
+    let q = (u + (dither & 0xFF) as i32) >> 8;
+    let mu = q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8;
+    let psi = (psi_key(f32::from_bits(bits), (dither >> 8) as u8) as i32 - base)
+        .clamp(0, PSI_CODE_MAX as i32) as u8;
+    (mu, psi)
+}
+
+/// What one dimension's scatter merge needs from its voxel (see [`QuantVoxel::merge_codes_fixed`]).
+struct ScatterUnits {
+    /// Whether the codes hold earlier points.
+    old: bool,
+    old_shift: i32,
+    inv_s2: u32,
+    s2: Parts,
+    /// The unit is c²·2^g.
+    g: i32,
+    /// n₀n₁/n with 8 fraction bits.
+    w: u64,
+    /// 2³²/n₁.
+    r1: u64,
+}
+
+/// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `k` the
+/// old minifloat code (with its base), `d` the distance of the means (MEAN_FRAC fraction bits), `numer`
+/// the sums' n₁Σc² − (Σc)². Not inlined: one copy of the body keeps the loop small.
+#[inline(never)]
+fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
+    let g = u.g;
+    // The old scatter's minifloat: exponent k/4, mantissa 1 + (k%4)/4.
+    let old = if !u.old || k < 4 {
+        0
+    } else {
+        let v = u64::from(4 + (k & 3)) * u64::from(u.inv_s2);
+        let sh = (k >> 2) as i32 + u.old_shift;
+        if sh >= 0 {
+            v << sh.min(8)
+        } else if sh > -64 {
+            v >> -sh
+        } else {
+            0
+        }
+    };
+    let within = (u64::from(numer) * u.r1) >> (32 + g);
+    let d2 = u64::from(d.unsigned_abs()).pow(2);
+    let between = (d2 * u.w) >> (36 + g); // d: 14 fraction bits, squared 28, w 8
+    let total = (old + within + between).min(u64::from(u32::MAX)) as u32;
+    if total == 0 {
+        return 0;
+    }
+    // total · 2^g · s² as f32 bits: normalise, one 32×24-bit product, renormalise by one bit.
+    let lz = total.leading_zeros() as i32;
+    let p = u64::from(total << lz) * u64::from(u.s2.m); // in [2⁵⁴, 2⁵⁶)
+    let hi = (p >> 55) as i32; // 1 if the product reached 2⁵⁵
+    let mant = (p >> (31 + hi)) as u32;
+    let biased = 150 + 31 + hi + g - lz + u.s2.e;
+    if biased <= 0 {
+        0
+    } else if biased >= 255 {
+        f32::MAX.to_bits()
+    } else {
+        ((biased as u32) << 23) | (mant & 0x7F_FFFF)
     }
 }
 
@@ -163,10 +272,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let n0 = count_of(self.count.to_bits());
         let n = n0.saturating_add(n1).min(1 << 30);
         let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
-        let mut mu = [0u8; D];
-        let mut psi = [0u8; D];
-        super::unpack(mu_part, MU_BITS, &mut mu);
-        super::unpack(psi_part, super::PSI_BITS, &mut psi);
+        // The trip count hidden from the optimiser: rolled loops, ≈ 1.5 KB of code instead of ≈ 5 KB.
+        let dims = core::hint::black_box(D);
         let sigma = if n0 > 0 {
             fix.steps_of(self.mu_scale)
         } else {
@@ -175,17 +282,19 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
 
         // ---- pass 1, means in code steps (MEAN_FRAC fraction bits): with x = Σc − n₁m₀, the merged mean
         // is m₀ + x/n and the new points' mean is m₀ + x/n₁ (d = x/n₁). Divisions by reciprocals (2³²/n).
-        let recip = |k: u32| -> i64 { ((1u64 << 32) / u64::from(k.max(1))) as i64 };
+        // (2³² − 1)/k: a 32-bit division (a 64-bit one links ≈ 1 KB of library code on a 32-bit MCU).
+        let recip = |k: u32| -> i64 { i64::from(u32::MAX / k.max(1)) };
         let (rn, rn1) = (recip(n), recip(n1));
         let mut mean = [0i32; D];
         let mut diff = [0i32; D];
         let mut max_abs = 0u32;
-        for (((m, dd), &q), &sum) in mean.iter_mut().zip(&mut diff).zip(&mu).zip(&sums.sum) {
-            let q = (i32::from(q) << (32 - MU_BITS)) >> (32 - MU_BITS);
-            let m0 = q.wrapping_mul(sigma);
-            let x = i64::from((sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0)));
-            *m = m0.wrapping_add(((x * rn + (1 << 31)) >> 32) as i32);
-            *dd = ((x * rn1 + (1 << 31)) >> 32) as i32;
+        for i in 0..dims {
+            let (Some(m), Some(dd), Some(&sum)) =
+                (mean.get_mut(i), diff.get_mut(i), sums.sum.get(i))
+            else {
+                break;
+            };
+            (*m, *dd) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn, rn1);
             max_abs = max_abs.max(m.unsigned_abs());
         }
 
@@ -217,101 +326,65 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // ---- pass 2, scatters in units of c²·2^g, g chosen so that n·127²·1.25 < 2³¹; each ends as the
         // f32 bit pattern of its value (what the minifloat codes are cut from).
         let g = (32 - n.leading_zeros() as i32) - 16;
-        let w = ((u64::from(n0) * u64::from(n1)) << 8) / u64::from(n); // n₀n₁/n, 8 fraction bits
-        let r1 = (1u64 << 32) / u64::from(n1); // 2³²/n₁
-        let old_shift = fix.inv_s2.e - 129 - g; // minifloat 2^(E−129)·(4+f) → units, with 1/s²
+        // n₀n₁/n = n₁ − n₁²/n, with 8 fraction bits (n₁²·2⁸ < 2²⁴), and 2³²/n₁: 32-bit divisions.
+        let w = u64::from((n1 << 8) - ((n1 * n1) << 8).wrapping_add(n / 2) / n);
+        let r1 = u64::from(u32::MAX / n1);
+        let ctx = ScatterUnits {
+            old: n0 > 0,
+            old_shift: fix.inv_s2.e - 129 - g, // minifloat 2^(E−129)·(4+f) → units, with 1/s²
+            inv_s2: fix.inv_s2.m,
+            s2: fix.s2,
+            g,
+            w,
+            r1,
+        };
         let base_old = u32::from(self.psi_base);
         let mut scatter = [0u32; D];
         let mut psi_max_bits = 0u32;
-        for ((((b, &c), &d), &sum), &sq) in scatter
-            .iter_mut()
-            .zip(&psi)
-            .zip(&diff)
-            .zip(&sums.sum)
-            .zip(&sums.squares)
-        {
-            let k = u32::from(c) + base_old; // the old scatter's minifloat: exponent k/4, mantissa 1 + (k%4)/4
-            let old = if n0 == 0 || k < 4 {
-                0
-            } else {
-                let v = u64::from(4 + (k & 3)) * u64::from(fix.inv_s2.m);
-                let sh = (k >> 2) as i32 + old_shift;
-                if sh >= 0 {
-                    v << sh.min(8)
-                } else if sh > -64 {
-                    v >> -sh
-                } else {
-                    0
-                }
+        for i in 0..dims {
+            let (Some(b), Some(&d), Some(&sum), Some(&sq)) = (
+                scatter.get_mut(i),
+                diff.get(i),
+                sums.sum.get(i),
+                sums.squares.get(i),
+            ) else {
+                break;
             };
-            let within = (u64::from(scatter_numerator(n1, sum, sq)) * r1) >> (32 + g);
-            let d2 = u64::from(d.unsigned_abs()).pow(2);
-            let between = (d2 * w) >> (36 + g); // d: 14 fraction bits, squared 28, w 8
-            let total = (old + within + between).min(u64::from(u32::MAX)) as u32;
-            // total · 2^g · s² as f32 bits: normalise, one 32×24-bit product, renormalise by one bit.
-            *b = if total == 0 {
-                0
-            } else {
-                let lz = total.leading_zeros() as i32;
-                let p = u64::from(total << lz) * u64::from(fix.s2.m); // in [2⁵⁴, 2⁵⁶)
-                let hi = (p >> 55) as i32; // 1 if the product reached 2⁵⁵
-                let mant = (p >> (31 + hi)) as u32;
-                let biased = 150 + 31 + hi + g - lz + fix.s2.e;
-                if biased <= 0 {
-                    0
-                } else if biased >= 255 {
-                    f32::MAX.to_bits()
-                } else {
-                    ((biased as u32) << 23) | (mant & 0x7F_FFFF)
-                }
-            };
+            *b = merged_scatter_bits(
+                &ctx,
+                code_at(psi_part, super::PSI_BITS, i) + base_old,
+                d,
+                scatter_numerator(n1, sum, sq),
+            );
             psi_max_bits = psi_max_bits.max(*b);
         }
         let top = (psi_max_bits.min(f32::MAX.to_bits()) >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
         // ---- pass 3, codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3:
-        // the next). μ: m/σ by a reciprocal (2⁴⁰/σ) to 1/256 of a step, plus a dither below one step, floored.
+        // the next). μ: m/σ by a reciprocal (2³²/σ) to 1/256 of a step, plus a dither below one step, floored.
         let r_sigma = if sigma > 0 {
-            ((1i64 << 40) + i64::from(sigma / 2)) / i64::from(sigma)
+            i64::from(u32::MAX / sigma.unsigned_abs())
         } else {
             0
         };
         let base = psi_base as i32;
-        let mu_code = |m: i32, dither: u32| -> u8 {
-            let u = ((i64::from(m).wrapping_mul(r_sigma) + (1 << 31)) >> 32) as i32;
-            let q = (u + (dither & 0xFF) as i32) >> 8;
-            q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
-        };
-        let psi_code = |bits: u32, dither: u32| -> u8 {
-            (psi_key(f32::from_bits(bits), dither as u8) as i32 - base)
-                .clamp(0, PSI_CODE_MAX as i32) as u8
-        };
-        for (((m, b), mc), pc) in mean
-            .chunks_exact(2)
-            .zip(scatter.chunks_exact(2))
-            .zip(mu.chunks_exact_mut(2))
-            .zip(psi.chunks_exact_mut(2))
-        {
-            let d = dither.next();
-            mc[0] = mu_code(m[0], d);
-            pc[0] = psi_code(b[0], d >> 8);
-            mc[1] = mu_code(m[1], d >> 16);
-            pc[1] = psi_code(b[1], d >> 24);
-        }
-        if D % 2 == 1 {
-            let d = dither.next();
-            if let (Some(mc), Some(pc), Some(&m), Some(&b)) =
-                (mu.last_mut(), psi.last_mut(), mean.last(), scatter.last())
-            {
-                *mc = mu_code(m, d);
-                *pc = psi_code(b, d >> 8);
-            }
-        }
         let mut codes = [0u8; P];
         let (mu_out, psi_out) = codes.split_at_mut(super::section_len(D, MU_BITS));
-        super::pack(&mu, MU_BITS, mu_out);
-        super::pack(&psi, super::PSI_BITS, psi_out);
+        let mut d = 0;
+        for i in 0..dims {
+            let (Some(&m), Some(&b)) = (mean.get(i), scatter.get(i)) else {
+                break;
+            };
+            if i % 2 == 0 {
+                d = dither.next();
+            } else {
+                d >>= 16;
+            }
+            let (mc, pc) = codes_of(m, r_sigma, b, base, d);
+            set_code(mu_out, MU_BITS, i, mc);
+            set_code(psi_out, super::PSI_BITS, i, pc);
+        }
         Self {
             count: f32::from_bits(f32_bits(u64::from(n), 0)),
             mu_scale,
