@@ -50,21 +50,21 @@ impl Parts {
     }
 }
 
-/// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2⁶² when shifting left. (Not inlined:
-/// a 64-bit shift is long on a 32-bit MCU, and it runs a few times per cooling, not per dimension.)
+/// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
+/// 64-bit shift is long on a 32-bit MCU.)
 #[inline(never)]
-fn shift(p: u64, sh: i32) -> u64 {
+fn shift(p: u32, sh: i32) -> u32 {
     if p == 0 {
         0
     } else if sh >= 0 {
-        if sh >= 62 || p.leading_zeros() < 2 + sh as u32 {
-            1 << 62
+        if sh >= 30 || p.leading_zeros() < 2 + sh as u32 {
+            1 << 30
         } else {
             p << sh
         }
     } else {
         let r = (-sh) as u32;
-        if r >= 64 {
+        if r >= 32 {
             0
         } else {
             (p >> (r - 1)).div_ceil(2)
@@ -74,14 +74,14 @@ fn shift(p: u64, sh: i32) -> u64 {
 
 /// The f32 bit pattern of `v · 2^e` (v > 0), mantissa truncated; 0 if it underflows, f32::MAX if too big.
 #[inline(never)]
-fn f32_bits(v: u64, e: i32) -> u32 {
+fn f32_bits(v: u32, e: i32) -> u32 {
     if v == 0 {
         return 0;
     }
     let lz = v.leading_zeros() as i32;
-    // v = mant · 2^(40 − lz) with mant in [2²³, 2²⁴).
-    let mant = ((v << lz) >> 40) as u32;
-    let biased = e + (40 - lz) + 150;
+    // v = mant · 2^(8 − lz) with mant in [2²³, 2²⁴).
+    let mant = (v << lz) >> 8;
+    let biased = e + (8 - lz) + 150;
     if biased <= 0 {
         0
     } else if biased >= 255 {
@@ -89,6 +89,13 @@ fn f32_bits(v: u64, e: i32) -> u32 {
     } else {
         ((biased as u32) << 23) | (mant & 0x7F_FFFF)
     }
+}
+
+/// The top 16 bits of `v` > 0 and the power of two they stand for: v ≈ t · 2^e with t in [2¹⁵, 2¹⁶).
+#[inline(always)]
+fn top16(v: u32) -> (u32, i32) {
+    let lz = v.leading_zeros() as i32;
+    ((v << lz) >> 16, 16 - lz)
 }
 
 /// Code `i` of a section packed by [`super::pack`] (`width` ≤ 8 bits), read on its own: the loops here stay
@@ -118,7 +125,7 @@ fn set_code(data: &mut [u8], width: u32, i: usize, code: u8) {
 #[inline]
 fn count_of(bits: u32) -> u32 {
     let p = Parts::of_bits(bits);
-    shift(u64::from(p.m), p.e).min(u64::from(u32::MAX)) as u32
+    shift(p.m, p.e)
 }
 
 /// The int8 scale s in the integer forms the fixed-point cooling needs (prepared in float once, when the
@@ -155,14 +162,15 @@ impl Int8Fix {
     #[inline(never)]
     fn steps_of(&self, sigma: f16) -> i32 {
         let h = sigma.to_bits();
-        let (e16, f) = (i32::from((h >> 10) & 0x1F), u64::from(h & 0x3FF));
+        let (e16, f) = (i32::from((h >> 10) & 0x1F), u32::from(h & 0x3FF));
         let (m, e) = match e16 {
             0 => (f, -24),              // subnormal (or zero)
             31 => return i32::MAX / 64, // never made by the encoder
             _ => (f | 0x400, e16 - 25),
         };
-        let v = shift(m * u64::from(self.inv_s.m), e + self.inv_s.e + MEAN_FRAC);
-        v.min(i32::MAX as u64 / 64) as i32
+        // 11-bit × 20-bit mantissas: 2⁻²⁰ relative, within a u32.
+        let v = shift(m * (self.inv_s.m >> 4), e + self.inv_s.e + 4 + MEAN_FRAC);
+        v.min(i32::MAX as u32 / 64) as i32
     }
 }
 
@@ -218,15 +226,11 @@ fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
     let old = if !u.old || k < 4 {
         0
     } else {
-        let v = u64::from(4 + (k & 3)) * u64::from(u.inv_s2);
-        let sh = (k >> 2) as i32 + u.old_shift;
-        if sh >= 0 {
-            v << sh.min(8)
-        } else if sh > -64 {
-            v >> -sh
-        } else {
-            0
-        }
+        // (4 + f) · 1/s² mantissa < 7 · 2²⁴.
+        u64::from(shift(
+            (4 + (k & 3)) * u.inv_s2,
+            (k >> 2) as i32 + u.old_shift,
+        ))
     };
     let within = (u64::from(numer) * u.r1) >> (32 + g);
     let d2 = u64::from(d.unsigned_abs()).pow(2);
@@ -235,12 +239,13 @@ fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
     if total == 0 {
         return 0;
     }
-    // total · 2^g · s² as f32 bits: normalise, one 32×24-bit product, renormalise by one bit.
-    let lz = total.leading_zeros() as i32;
-    let p = u64::from(total << lz) * u64::from(u.s2.m); // in [2⁵⁴, 2⁵⁶)
-    let hi = (p >> 55) as i32; // 1 if the product reached 2⁵⁵
-    let mant = (p >> (31 + hi)) as u32;
-    let biased = 150 + 31 + hi + g - lz + u.s2.e;
+    // total · 2^g · s² as f32 bits, from 16-bit pieces (the minifloat key reads 2 + 8 bits of mantissa):
+    // a 16 × 16-bit product in [2³⁰, 2³²), renormalised by one bit.
+    let (t, te) = top16(total);
+    let p = t * (u.s2.m >> 8);
+    let hi = (p >> 31) as i32;
+    let mant = (p << (1 - hi)) >> 8;
+    let biased = 150 + 7 + hi + te + 8 + g + u.s2.e;
     if biased <= 0 {
         0
     } else if biased >= 255 {
@@ -309,11 +314,10 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         } else if max_abs == 0 {
             (f16::ZERO, 0)
         } else {
-            // max·1.25/63 · s, with 1.25/63 ≈ 332,881 · 2⁻²⁴.
-            let v = max_abs as u64 * 332_881;
-            let lz = v.leading_zeros() as i32;
-            let top = (v << lz) >> 32; // v ≈ top · 2^(32 − lz)
-            let bits = f32_bits(top * u64::from(fix.s.m), 32 - lz - 24 - MEAN_FRAC + fix.s.e);
+            // max·1.25/63 · s in 16-bit pieces (f16 keeps 11 bits): 1.25/63 ≈ 41,610 · 2⁻²¹.
+            let (t, e) = top16(max_abs as u32);
+            let (p, pe) = top16(t * 41_610);
+            let bits = f32_bits(p * (fix.s.m >> 8), e + pe - MEAN_FRAC - 21 + 8 + fix.s.e);
             let mut s = f16::from_f32(f32::from_bits(bits));
             let mut sig = fix.steps_of(s);
             if sig.saturating_mul(qmax) < max_abs {
@@ -386,7 +390,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             set_code(psi_out, super::PSI_BITS, i, pc);
         }
         Self {
-            count: f32::from_bits(f32_bits(u64::from(n), 0)),
+            count: f32::from_bits(f32_bits(n, 0)),
             mu_scale,
             psi_base,
             codes,

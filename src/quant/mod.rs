@@ -96,10 +96,8 @@ fn max_magnitude_bits(values: &[f32]) -> u32 {
     m.min(f32::MAX.to_bits())
 }
 
-/// Pack `width`-bit codes, 8 at a time into `width` bytes (independent shifts, no carried state). One copy
-/// for both widths, not inlined: ≈ 1 KB less flash per caller; a call per voxel encoded costs ≈ 20
-/// instructions.
-#[inline(never)]
+/// Pack `width`-bit codes, 8 at a time into `width` bytes (independent shifts, no carried state).
+#[inline]
 fn pack(codes: &[u8], width: u32, out: &mut [u8]) {
     let w = width as usize;
     for (chunk, dst) in codes.chunks(8).zip(out.chunks_mut(w)) {
@@ -113,8 +111,8 @@ fn pack(codes: &[u8], width: u32, out: &mut [u8]) {
     }
 }
 
-/// Unpack what [`pack`] wrote (not inlined, as [`pack`]).
-#[inline(never)]
+/// Unpack what [`pack`] wrote.
+#[inline]
 fn unpack(data: &[u8], width: u32, codes: &mut [u8]) {
     let w = width as usize;
     let mask = (1u64 << width) - 1;
