@@ -18,6 +18,8 @@ use latentbki::{key::VoxelKey, sink::Evicted, stats::VoxelStats, Setup};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
+mod study;
+
 /// The demo's summary codec: 3-bit means for a one-point voxel, one more bit per doubling of its points
 /// (up to 3 more), 2 scatter blocks. (The tile's LiDAR voxels hold 3.5 points on average: most bytes go to
 /// voxels of one or two points, while the voxels of many points, which move posteriors most, get 4–6 bits.
@@ -66,6 +68,10 @@ pub struct LinkArgs {
     /// Seed of the link's faults.
     #[arg(long, default_value_t = 7)]
     pub link_seed: u64,
+    /// After the run, measure other summary codecs on the robot's map (where the base station's error
+    /// comes from; `demo_radio::study`).
+    #[arg(long)]
+    pub codec_study: bool,
 }
 
 impl LinkArgs {
@@ -110,6 +116,10 @@ pub struct DemoRadio {
     config: SessionConfig,
     args: LinkArgs,
     robot_map: Option<HashMap<VoxelKey, VoxelStats<D>>>,
+    /// The robot's observed voxels (for `--codec-study`).
+    robot_obs: Option<(latentbki::MapConfig, Vec<(VoxelKey, latentbki::obs::ObsStats<D>)>)>,
+    /// At the end, `--codec-study`'s table.
+    study: Option<String>,
     /// Bytes of live-update frames.
     live_bytes: u64,
     /// The robot's link counters at the end.
@@ -123,6 +133,8 @@ pub struct DemoRadio {
     reference: Option<(f64, f64, usize)>,
     /// The same for the robot's own map (what no link can improve on).
     robot_reference: Option<(f64, f64, usize)>,
+    /// The base station against the robot's own map (what the wire alone costs).
+    wire_error: Option<(f64, f64, usize)>,
     /// The live view / recording of the base station, if asked for.
     viewer: Option<crate::base_station::view::Viewer<D>>,
 }
@@ -138,6 +150,8 @@ impl DemoRadio {
             base,
             config,
             robot_map: None,
+            robot_obs: None,
+            study: None,
             args: args.clone(),
             live_bytes: 0,
             robot: None,
@@ -147,6 +161,7 @@ impl DemoRadio {
             decoder: None,
             reference: None,
             robot_reference: None,
+            wire_error: None,
             viewer: None,
         })))
     }
@@ -235,6 +250,10 @@ impl DemoRadio {
         }
         self.agreement = Some((both, agree as f64 / both.max(1) as f64));
         self.robot_map = Some(m);
+        if self.args.codec_study {
+            let obs = robot.observed_voxels().map(|(k, o)| (k, *o)).collect();
+            self.robot_obs = Some((*robot.config(), obs));
+        }
     }
 
     /// Compare the base station's posteriors with the f32 reference map of all points (sorted `(key,
@@ -249,6 +268,21 @@ impl DemoRadio {
         let ours: HashMap<VoxelKey, VoxelStats<D>> = base.posteriors().into_iter().collect();
         self.reference = Some(against(&ours, reference, decoder));
         self.robot_reference = Some(against(robot, reference, decoder));
+        let mut robot_sorted: Vec<(VoxelKey, VoxelStats<D>)> =
+            robot.iter().map(|(k, v)| (*k, *v)).collect();
+        robot_sorted.sort_unstable_by_key(|(k, _)| *k);
+        self.wire_error = Some(against(&ours, &robot_sorted, decoder));
+        if let Some((config, obs)) = &self.robot_obs {
+            let mut t = study::table(*config, obs, &robot_sorted, reference, decoder);
+            t += &study::lead_rows(*config, obs, &robot_sorted, reference, decoder);
+            t += &format!(
+                "  robot map vs reference: {}\n  base station vs reference: {}\n  base station vs robot map: {}\n",
+                study::profile(robot, reference),
+                study::profile(&ours, reference),
+                study::profile(&ours, &robot_sorted),
+            );
+            self.study = Some(t);
+        }
     }
 
     /// The link's account in stable lines: points lost, bytes per integrated point by what they carried,
@@ -310,6 +344,11 @@ impl DemoRadio {
                 100.0 * a
             );
         }
+        if let Some((_, rms, _)) = self.wire_error {
+            out += &format!(
+                "base station vs robot map (the wire's own error): RMS ‖Δμ‖/‖μ‖ {rms:.4}\n"
+            );
+        }
         out += &format!(
             "link: {} ticks of {TICK_MS} ms; up: {} frames written ({} re-sent), {} dropped, {} truncated, {} delayed, \
              {} lost to outages; the base station applied {} frames and {} live updates, refused {} damaged runs of \
@@ -330,6 +369,10 @@ impl DemoRadio {
             down.outage_dropped,
             robot.stats.bad_acks,
         );
+        if let Some(t) = &self.study {
+            out += "\n";
+            out += t;
+        }
         out
     }
 }
