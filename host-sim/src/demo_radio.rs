@@ -117,7 +117,10 @@ pub struct DemoRadio {
     args: LinkArgs,
     robot_map: Option<HashMap<VoxelKey, VoxelStats<D>>>,
     /// The robot's observed voxels (for `--codec-study`).
-    robot_obs: Option<(latentbki::MapConfig, Vec<(VoxelKey, latentbki::obs::ObsStats<D>)>)>,
+    robot_obs: Option<(
+        latentbki::MapConfig,
+        Vec<(VoxelKey, latentbki::obs::ObsStats<D>)>,
+    )>,
     /// At the end, `--codec-study`'s table.
     study: Option<String>,
     /// Bytes of live-update frames.

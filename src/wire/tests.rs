@@ -1,4 +1,5 @@
-use super::summary::{block_range, hadamard, put_varint, unzigzag, zigzag};
+use super::codec::{block_range, hadamard};
+use super::summary::{put_varint, unzigzag, zigzag};
 use super::*;
 use crate::config::{KernelMode, MapConfig, Prior};
 use crate::key::VoxelKey;

@@ -35,7 +35,16 @@ pub fn table(
     decoder: &Decoder,
 ) -> String {
     let mut rows = Vec::new();
-    for (mean_bits, growth) in [(2, 4), (3, 3), (3, 4), (3, 5), (4, 2), (4, 3), (4, 4), (5, 3)] {
+    for (mean_bits, growth) in [
+        (2, 4),
+        (3, 3),
+        (3, 4),
+        (3, 5),
+        (4, 2),
+        (4, 3),
+        (4, 4),
+        (5, 3),
+    ] {
         let codec = SummaryCodec {
             mean_bits,
             psi_blocks: super::CODEC.psi_blocks,
@@ -62,8 +71,14 @@ pub fn table(
         }
         let am = ms.iter().sum::<f64>() / D as f64;
         let gm = (ms.iter().map(|m| m.max(1e-30).ln()).sum::<f64>() / D as f64).exp();
-        let bands: Vec<String> = ms.chunks(8).map(|b| format!("{:.2e}", b.iter().sum::<f64>() / 8.0 / c.max(1) as f64)).collect();
-        let first: Vec<String> = ms[..8].iter().map(|m| format!("{:.1e}", m / c.max(1) as f64)).collect();
+        let bands: Vec<String> = ms
+            .chunks(8)
+            .map(|b| format!("{:.2e}", b.iter().sum::<f64>() / 8.0 / c.max(1) as f64))
+            .collect();
+        let first: Vec<String> = ms[..8]
+            .iter()
+            .map(|m| format!("{:.1e}", m / c.max(1) as f64))
+            .collect();
         println!("first 8: {}", first.join(" "));
         println!("spectrum {name} ({c} voxels): per 8 components {}; coding gain AM/GM {:.2} = {:.2} bits", bands.join(" "), am / gm, 0.5 * (am / gm).log2());
     }
@@ -173,7 +188,11 @@ pub fn profile(
     }
     errs.sort_by(f64::total_cmp);
     let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len().max(1) as f64).sqrt();
-    let q = |p: f64| errs.get(((errs.len() as f64 - 1.0) * p) as usize).copied().unwrap_or(0.0);
+    let q = |p: f64| {
+        errs.get(((errs.len() as f64 - 1.0) * p) as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
     format!(
         "{missing} of {} unanswered; answered: RMS {rms:.4}, median {:.4}, p95 {:.4}, p99 {:.4}, max {:.4}",
         reference.len(),
@@ -252,7 +271,11 @@ pub fn lead_rows(
         let mut bytes = 0.0;
         for (k, o) in robot {
             let count = wire_count(o.count).unwrap_or(1);
-            let grow = if count > 1 { count.ilog2().min(growth) } else { 0 };
+            let grow = if count > 1 {
+                count.ilog2().min(growth)
+            } else {
+                0
+            };
             let mut d = *o;
             let (a, b) = d.mean.split_at_mut(lead);
             bytes += quantize_band(a, (base + extra + grow).min(8));
