@@ -705,6 +705,8 @@ mod tests {
                 mean_bits: 1,
                 psi_blocks: 8,
                 mean_bits_growth: 0,
+                lead: 0,
+                lead_bits: 0,
             },
             ..setup()
         };

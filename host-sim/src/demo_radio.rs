@@ -20,14 +20,19 @@ use std::sync::{Arc, Mutex};
 
 mod study;
 
-/// The demo's summary codec: 3-bit means for a one-point voxel, one more bit per doubling of its points
-/// (up to 3 more), 2 scatter blocks. (The tile's LiDAR voxels hold 3.5 points on average: most bytes go to
-/// voxels of one or two points, while the voxels of many points, which move posteriors most, get 4–6 bits.
-/// Ψ in 2 blocks instead of 8 saves 3 B per summary of ≥ 2 points; μ and the argmax do not depend on it.)
+/// The demo's summary codec: the 8 leading (PCA) mean components as a band of their own with 3 more bits,
+/// the other 56 with 3 bits for a one-point voxel, one more bit per doubling of its points (up to 3 more),
+/// 2 scatter blocks. (The classes live in the leading components: they take 3 B more per summary and
+/// bring the base station's argmax agreement with the robot from 99.72 % to 99.95 % on the demo's map,
+/// where one more bit for all 64 components costs 8 B for 99.88 % — `demo --codec-study`. The tile's
+/// LiDAR voxels hold 3.5 points on average: most bytes go to voxels of one or two points. Ψ in 2 blocks
+/// instead of 8 saves 3 B per summary of ≥ 2 points; μ and the argmax do not depend on it.)
 pub const CODEC: latentbki::wire::SummaryCodec = latentbki::wire::SummaryCodec {
     mean_bits: 3,
     psi_blocks: 2,
     mean_bits_growth: 3,
+    lead: 8,
+    lead_bits: 3,
 };
 
 /// Bytes the robot may send per tick.

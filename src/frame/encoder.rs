@@ -200,6 +200,8 @@ const NO_SESSION: SessionConfig = SessionConfig {
         mean_bits: 0,
         psi_blocks: 0,
         mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
     },
     feature_space: 0,
     int8_scale: 0.0,

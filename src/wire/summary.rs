@@ -151,9 +151,11 @@ pub fn decode_summary<const D: usize>(
     }
     let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
     let obs = decode_codes::<D>(codec, count as f32, codes)?;
-    let psi_at = 1 + (D * codec.bits_for(count as u32) as usize).div_ceil(8);
+    let count = count as u32;
+    let psi_at = codec.mean_len_for(D, count);
+    let rest_at = codec.lead_len_for(count);
     let at_ceiling = Ceiling {
-        mean_scale: codes.first() == Some(&u8::MAX),
+        mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
         psi: codes.get(psi_at) == Some(&u8::MAX),
     };
     *base = DeltaBase { key, residency };

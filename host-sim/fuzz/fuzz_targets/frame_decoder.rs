@@ -26,6 +26,8 @@ fuzz_target!(|data: &[u8]| {
                                 mean_bits: 8,
                                 psi_blocks: 64,
                                 mean_bits_growth: 0,
+                                lead: 0,
+                                lead_bits: 0,
                             },
                         ] {
                             for s in batch.iter::<64>(codec) {

@@ -31,6 +31,8 @@ fuzz_target!(|data: &[u8]| {
         mean_bits: 2 + data[0] % 7,
         psi_blocks: 1 + data[1] % D as u8,
         mean_bits_growth: data[0] / 7 % 4,
+        lead: 0,
+        lead_bits: 0,
     };
     let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
     let mut enc = FrameEncoder::<D, 2048, 256>::new(config, EncoderSettings::new(1, 1)).unwrap();

@@ -49,6 +49,8 @@ pub fn table(
             mean_bits,
             psi_blocks: super::CODEC.psi_blocks,
             mean_bits_growth: growth,
+            lead: 0,
+            lead_bits: 0,
         };
         rows.push(row(
             config,
@@ -256,30 +258,27 @@ pub fn lead_rows(
 ) -> String {
     let mut out = String::new();
     let n = robot.len().max(1) as f64;
-    for (lead, base, extra, growth) in [
-        (8, 3, 2, 3),
-        (8, 3, 3, 3),
-        (8, 2, 3, 3),
-        (8, 2, 4, 3),
-        (8, 3, 4, 3),
-        (4, 3, 3, 3),
-        (16, 3, 3, 3),
-        (8, 4, 2, 3),
-        (8, 4, 3, 3),
-    ] {
+    let lg = |n: u32| if n > 1 { n.ilog2() } else { 0 };
+    type Bits = Box<dyn Fn(u32) -> u32>;
+    let candidates: Vec<(&str, usize, Bits, Bits)> = vec![
+        ("A: rest 3+g3, lead +3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + lg(n).min(3))),
+        ("B: rest 3+g3/2, lead 6+g3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + (lg(n) / 2).min(3))),
+        ("C: rest 2 at n=1, lead +3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| if n == 1 { 2 } else { 3 + lg(n).min(3) })),
+        ("D: rest 3+g(n+1)/2", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + ((lg(n) + 1) / 2).min(3))),
+        ("E: rest 3 flat, lead 6+g3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |_| 3)),
+        ("F: rest 2+g3, lead 6+g3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 2 + lg(n).min(3))),
+        ("G: lead 6 flat, rest 3+g3", 8, Box::new(move |_| 6), Box::new(move |n| 3 + lg(n).min(3))),
+        ("H: lead 5+g3, rest 3+g3", 8, Box::new(move |n| (5 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + lg(n).min(3))),
+    ];
+    for (name, lead, lead_bits, rest_bits) in candidates {
         let mut map = ObsMap::<D>::new(config).expect("the robot's configuration");
         let mut bytes = 0.0;
         for (k, o) in robot {
             let count = wire_count(o.count).unwrap_or(1);
-            let grow = if count > 1 {
-                count.ilog2().min(growth)
-            } else {
-                0
-            };
             let mut d = *o;
             let (a, b) = d.mean.split_at_mut(lead);
-            bytes += quantize_band(a, (base + extra + grow).min(8));
-            bytes += quantize_band(b, (base + grow).min(8));
+            bytes += quantize_band(a, lead_bits(count));
+            bytes += quantize_band(b, rest_bits(count).min(8));
             if count >= 2 {
                 bytes += 1.0 + f64::from(super::CODEC.psi_blocks).div_euclid(2.0).max(1.0);
             }
@@ -289,7 +288,7 @@ pub fn lead_rows(
         let r = against(&ours, robot_posteriors, decoder);
         let f = against(&ours, reference, decoder);
         out += &format!(
-            "  lead {lead} (+{extra} bits), rest {base} bits + growth {growth}: {:6.2} B; robot {:6.2} % {:.4}; reference {:6.2} % {:.4}\n",
+            "  {name}: {:6.2} B; robot {:6.2} % {:.4}; reference {:6.2} % {:.4}\n",
             bytes / n,
             100.0 * r.0,
             r.1,
