@@ -360,8 +360,8 @@ impl DemoRadio {
         out += &format!(
             "link: {} ticks of {TICK_MS} ms; up: {} frames written ({} re-sent), {} dropped, {} truncated, {} delayed, \
              {} lost to outages; the base station applied {} frames and {} live updates, refused {} damaged runs of \
-             bytes and {} repeated frames; down: {} acknowledgements, {} lost to outages; the robot refused {} \
-             damaged or foreign ones.",
+             bytes and {} repeated frames ({} copies made by the link); down: {} acknowledgements, {} lost to \
+             outages; the robot refused {} damaged or foreign ones.",
             self.ticks,
             up.frames,
             robot.stats.resent,
@@ -373,6 +373,7 @@ impl DemoRadio {
             s.updated,
             s.decoder.refused(),
             s.rejected.duplicate_frames,
+            up.duplicated,
             down.frames,
             down.outage_dropped,
             robot.stats.bad_acks,

@@ -96,7 +96,11 @@ impl SummaryCodec {
         if self.lead == 0 {
             return self.bits_for(count);
         }
-        let grow = if count > 1 { count.ilog2().div_ceil(2) } else { 0 };
+        let grow = if count > 1 {
+            count.ilog2().div_ceil(2)
+        } else {
+            0
+        };
         let grow = if grow < self.mean_bits_growth as u32 {
             grow
         } else {
@@ -295,9 +299,19 @@ pub fn encode_codes<const D: usize>(
     let mut tmp = [0.0f32; D];
     let (t_lead, t_rest) = t.split_at_mut(lead);
     if lead > 0 {
-        encode_band(t_lead, &mut tmp[..lead], codec.lead_bits_for(count), lead_bytes);
+        encode_band(
+            t_lead,
+            &mut tmp[..lead],
+            codec.lead_bits_for(count),
+            lead_bytes,
+        );
     }
-    encode_band(t_rest, &mut tmp[lead..], codec.rest_bits_for(count), mean_bytes);
+    encode_band(
+        t_rest,
+        &mut tmp[lead..],
+        codec.rest_bits_for(count),
+        mean_bytes,
+    );
     // A single point has no scatter: nothing is sent for it.
     let [max_byte, block_bytes @ ..] = psi_bytes else {
         return Ok(len);

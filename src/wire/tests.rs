@@ -287,5 +287,10 @@ fn a_lead_band_codes_the_leading_components_finer_and_keeps_the_rest_as_without_
     assert_eq!(pa.scatter, pb.scatter);
     // A lead band must leave components for the rest, and at most 6 more bits.
     assert!(SummaryCodec { lead: 64, ..lead }.validate(64).is_err());
-    assert!(SummaryCodec { lead_bits: 7, ..lead }.validate(64).is_err());
+    assert!(SummaryCodec {
+        lead_bits: 7,
+        ..lead
+    }
+    .validate(64)
+    .is_err());
 }

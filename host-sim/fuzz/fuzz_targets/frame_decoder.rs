@@ -29,6 +29,14 @@ fuzz_target!(|data: &[u8]| {
                                 lead: 0,
                                 lead_bits: 0,
                             },
+                            // The demo's: a lead band.
+                            SummaryCodec {
+                                mean_bits: 3,
+                                psi_blocks: 2,
+                                mean_bits_growth: 3,
+                                lead: 8,
+                                lead_bits: 3,
+                            },
                         ] {
                             for s in batch.iter::<64>(codec) {
                                 if let Ok(s) = s {

@@ -174,6 +174,8 @@ pub fn profile(
 ) -> String {
     let mut errs = Vec::with_capacity(reference.len());
     let mut missing = 0usize;
+    // Squared relative error in the 8 leading components and in the others.
+    let (mut lead_sq, mut all_sq) = (0.0f64, 0.0f64);
     for (k, r) in reference {
         let Some(b) = got.get(k) else {
             missing += 1;
@@ -186,6 +188,13 @@ pub fn profile(
             .zip(&r.mean)
             .map(|(x, y)| f64::from((x - y) * (x - y)))
             .sum();
+        let lead: f64 = b.mean[..8]
+            .iter()
+            .zip(&r.mean[..8])
+            .map(|(x, y)| f64::from((x - y) * (x - y)))
+            .sum();
+        lead_sq += lead / den.max(1e-12);
+        all_sq += num / den.max(1e-12);
         errs.push((num / den.max(1e-12)).sqrt());
     }
     errs.sort_by(f64::total_cmp);
@@ -196,12 +205,14 @@ pub fn profile(
             .unwrap_or(0.0)
     };
     format!(
-        "{missing} of {} unanswered; answered: RMS {rms:.4}, median {:.4}, p95 {:.4}, p99 {:.4}, max {:.4}",
+        "{missing} of {} unanswered; answered: RMS {rms:.4}, median {:.4}, p95 {:.4}, p99 {:.4}, max {:.4}; \
+         {:.0} % of the squared error in the 8 leading components",
         reference.len(),
         q(0.5),
         q(0.95),
         q(0.99),
-        q(1.0)
+        q(1.0),
+        100.0 * lead_sq / all_sq.max(1e-30)
     )
 }
 
@@ -261,14 +272,54 @@ pub fn lead_rows(
     let lg = |n: u32| if n > 1 { n.ilog2() } else { 0 };
     type Bits = Box<dyn Fn(u32) -> u32>;
     let candidates: Vec<(&str, usize, Bits, Bits)> = vec![
-        ("A: rest 3+g3, lead +3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + lg(n).min(3))),
-        ("B: rest 3+g3/2, lead 6+g3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + (lg(n) / 2).min(3))),
-        ("C: rest 2 at n=1, lead +3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| if n == 1 { 2 } else { 3 + lg(n).min(3) })),
-        ("D: rest 3+g(n+1)/2", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + ((lg(n) + 1) / 2).min(3))),
-        ("E: rest 3 flat, lead 6+g3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |_| 3)),
-        ("F: rest 2+g3, lead 6+g3", 8, Box::new(move |n| (6 + lg(n).min(3)).min(8)), Box::new(move |n| 2 + lg(n).min(3))),
-        ("G: lead 6 flat, rest 3+g3", 8, Box::new(move |_| 6), Box::new(move |n| 3 + lg(n).min(3))),
-        ("H: lead 5+g3, rest 3+g3", 8, Box::new(move |n| (5 + lg(n).min(3)).min(8)), Box::new(move |n| 3 + lg(n).min(3))),
+        (
+            "A: rest 3+g3, lead +3",
+            8,
+            Box::new(move |n| (6 + lg(n).min(3)).min(8)),
+            Box::new(move |n| 3 + lg(n).min(3)),
+        ),
+        (
+            "B: rest 3+g3/2, lead 6+g3",
+            8,
+            Box::new(move |n| (6 + lg(n).min(3)).min(8)),
+            Box::new(move |n| 3 + (lg(n) / 2).min(3)),
+        ),
+        (
+            "C: rest 2 at n=1, lead +3",
+            8,
+            Box::new(move |n| (6 + lg(n).min(3)).min(8)),
+            Box::new(move |n| if n == 1 { 2 } else { 3 + lg(n).min(3) }),
+        ),
+        (
+            "D: rest 3+g(n+1)/2",
+            8,
+            Box::new(move |n| (6 + lg(n).min(3)).min(8)),
+            Box::new(move |n| 3 + ((lg(n) + 1) / 2).min(3)),
+        ),
+        (
+            "E: rest 3 flat, lead 6+g3",
+            8,
+            Box::new(move |n| (6 + lg(n).min(3)).min(8)),
+            Box::new(move |_| 3),
+        ),
+        (
+            "F: rest 2+g3, lead 6+g3",
+            8,
+            Box::new(move |n| (6 + lg(n).min(3)).min(8)),
+            Box::new(move |n| 2 + lg(n).min(3)),
+        ),
+        (
+            "G: lead 6 flat, rest 3+g3",
+            8,
+            Box::new(move |_| 6),
+            Box::new(move |n| 3 + lg(n).min(3)),
+        ),
+        (
+            "H: lead 5+g3, rest 3+g3",
+            8,
+            Box::new(move |n| (5 + lg(n).min(3)).min(8)),
+            Box::new(move |n| 3 + lg(n).min(3)),
+        ),
     ];
     for (name, lead, lead_bits, rest_bits) in candidates {
         let mut map = ObsMap::<D>::new(config).expect("the robot's configuration");
