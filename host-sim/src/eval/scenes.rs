@@ -585,7 +585,8 @@ pub fn run(
             format!("map scale: {}", source.scale_note())
         },
     );
-    let mut md = experiment::table(&format!("Scene: {}", source.title()), &results, &notes);
+    let mut md =
+        super::tables::results_table(&format!("Scene: {}", source.title()), &results, &notes);
     if let Some(r) = results.iter().find(|r| r.method == Method::LatentBki(f)) {
         md += &format!(
             "\nmIoU above averages the classes present in the ground truth ({} of {}); averaged as the authors' evaluation does (all {} classes, an absent class counting 0), LatentBKI f32 (f = {f}) has {:.2} %.\n",
@@ -595,7 +596,7 @@ pub fn run(
             100.0 * r.confusion.miou_authors()
         );
     }
-    md += &super::per_class::iou_table(&dec.classes, &results);
+    md += &super::tables::iou_table(&dec.classes, &results);
     md += &format!(
         "\nUncertainty of LatentBKI (f = {f}) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points). Sampling: {} draws, variance of the predicted class's score:\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
         spars.points, setup.sampling_draws

@@ -21,7 +21,6 @@
 //! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
 //! voxel the map cannot answer is wrong.
 
-pub mod plot;
 pub mod world;
 
 use crate::eval::experiment::{decoding, Decoding, Setup};
@@ -489,7 +488,9 @@ pub fn explore(args: &ExploreArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let path = args.out.join("explore.png");
-    plot::curves(&path, &grid, &acc, &miou).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let names = Planner::ALL.map(Planner::name);
+    crate::eval::figures::distance_curves(&path, &names, &grid, &acc, &miou)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("wrote {}", path.display());
     Ok(())
 }
