@@ -25,7 +25,8 @@ pub struct SweepPoint {
 }
 
 /// The sparsity sweep (paper Fig. 3): accuracy and mIoU of LatentBKI with each filter size at each sensor
-/// budget. Each budget's sequence is built and encoded once; the runs go to [`run_with_sweep`].
+/// budget. Each budget's sequence is built and encoded once; the runs go to
+/// [`run_with_sweep`](super::experiment::run_with_sweep).
 pub struct Sweep {
     pub(super) runs: Vec<SweepRun>,
     filters: Vec<u8>,
