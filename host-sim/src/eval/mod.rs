@@ -5,7 +5,7 @@
 //! pool of worker threads (`pool`), the sparsity sweep (`sweep`) among them; [`methods`] holds the
 //! compared mappers, [`metrics`] the confusion matrix, [`tables`] the results and per-class IoU tables,
 //! [`sparsification`] the uncertainty analysis, [`figures`] the PNGs, and [`scenes`] the two default
-//! experiments the CLI runs.
+//! experiments the CLI runs (`scene_report` runs one end to end).
 
 pub mod cli;
 pub mod experiment;
@@ -13,6 +13,7 @@ pub mod figures;
 pub mod methods;
 pub mod metrics;
 mod pool;
+mod scene_report;
 pub mod scenes;
 pub mod sparsification;
 mod sweep;
