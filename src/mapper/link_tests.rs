@@ -1,7 +1,8 @@
 //! The robot's side of the link as a firmware runs it: taps, live updates, acknowledgements.
 
 use super::*;
-use crate::frame::Resend;
+use crate::config::MapConfig;
+use crate::frame::{EncoderSettings, Resend};
 use crate::quant::packed_len;
 use crate::receiver::{Receipt, Receiver, Sessions};
 use crate::wire::Message;

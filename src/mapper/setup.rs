@@ -1,0 +1,71 @@
+//! What a [`Mapper`](super::Mapper) is configured with (a `const` [`Setup`]) and why it refuses one.
+
+use crate::config::{ConfigError, MapConfig};
+use crate::frame::EncoderSettings;
+use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
+
+/// Everything a [`Mapper`](super::Mapper) is configured with; `const`-constructible, so a firmware keeps it in a `static`.
+///
+/// ```
+/// use latentbki::{EncoderSettings, MapConfig, Setup};
+///
+/// // Robot 3, session 12 (a boot counter); voxels within 2 m of the sensor stay on the device.
+/// static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(3, 12));
+/// assert_eq!((SETUP.link.robot, SETUP.window_radius), (3, 2.0));
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Setup {
+    /// Voxel size, kernel, prior.
+    pub map: MapConfig,
+    /// Radius of the window around the robot (m): voxels farther away are evicted and streamed.
+    pub window_radius: f32,
+    /// Robot id, session id, how often the session header and link statistics repeat.
+    pub link: EncoderSettings,
+    /// How summaries are quantized on the wire.
+    pub codec: SummaryCodec,
+    /// Id of the PCA the features were compressed with ([`crate::wire::feature_space_id`]), or
+    /// [`NO_FEATURE_SPACE`].
+    pub feature_space: u32,
+    /// Scale of int8 features (a code c is the feature value `int8_scale` · c); 0 = the robot gives f32
+    /// features only. Sent in the session header.
+    pub int8_scale: f32,
+}
+
+impl Setup {
+    /// A setup with the default summary codec and features that are not tied to a PCA.
+    pub const fn new(map: MapConfig, window_radius: f32, link: EncoderSettings) -> Self {
+        Self {
+            map,
+            window_radius,
+            link,
+            codec: SummaryCodec::DEFAULT,
+            feature_space: NO_FEATURE_SPACE,
+            int8_scale: 0.0,
+        }
+    }
+
+    /// The same setup for a robot whose features are int8 codes: c stands for `scale` · c (e.g. an NPU's
+    /// output quantization scale). f32 features stay accepted too.
+    pub const fn with_int8_features(self, scale: f32) -> Self {
+        Self {
+            int8_scale: scale,
+            ..self
+        }
+    }
+
+    /// The session configuration a `dim`-dimensional map sends in its header.
+    pub fn session(&self, dim: usize) -> SessionConfig {
+        SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
+            .with_int8_scale(self.int8_scale)
+    }
+}
+
+/// Why [`Mapper::configure`](super::Mapper::configure) refused a setup.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SetupError {
+    /// The map refused its part (window radius, sub-voxel kernel, …).
+    Map(ConfigError),
+    /// The encoder refused its part (codec, or buffers too small for one summary).
+    Link(WireError),
+}
