@@ -282,7 +282,6 @@ impl DemoRadio {
         self.wire_error = Some(against(&ours, &robot_sorted, decoder));
         if let Some((config, obs)) = &self.robot_obs {
             let mut t = study::table(*config, obs, &robot_sorted, reference, decoder);
-            t += &study::lead_rows(*config, obs, &robot_sorted, reference, decoder);
             t += &format!(
                 "  robot map vs reference: {}\n  base station vs reference: {}\n  base station vs robot map: {}\n",
                 study::profile(robot, reference),
