@@ -127,22 +127,20 @@ impl SummaryCodec {
 
     /// Bytes of the lead band (its scale and codes; 0 without one) of a summary of `count` points.
     pub const fn lead_len_for(self, count: u32) -> usize {
-        if self.lead == 0 {
-            0
-        } else {
-            1 + (self.lead as usize * self.lead_bits_for(count) as usize).div_ceil(8)
-        }
+        band_len(self.lead as usize, self.lead_bits_for(count))
     }
 
     /// Bytes of the mean (lead band, then the other components' scale and codes) of a D-dimensional
     /// summary of `count` points.
     pub const fn mean_len_for(self, dim: usize, count: u32) -> usize {
-        let rest = dim - self.lead as usize;
-        self.lead_len_for(count) + 1 + (rest * self.rest_bits_for(count) as usize).div_ceil(8)
+        let rest = dim.saturating_sub(self.lead as usize);
+        self.lead_len_for(count) + band_len(rest, self.rest_bits_for(count))
     }
 
     /// Bytes of the quantized part (mean scale, mean codes, and — for n ≥ 2 — the scatter) of a
-    /// D-dimensional summary of `count` points. A single point has no scatter, so none is sent.
+    /// D-dimensional summary of `count` points. A single point has no scatter, so none is sent. (Not
+    /// inlined: one copy in flash for its callers on the robot.)
+    #[inline(never)]
     pub const fn code_len_for(self, dim: usize, count: u32) -> usize {
         let mean = self.mean_len_for(dim, count);
         if count < 2 {
@@ -187,6 +185,7 @@ pub(super) fn hadamard<const D: usize>(v: &mut [f32; D]) -> f32 {
 }
 
 /// [`hadamard`] of a slice of any length (`tmp` as long as `v`, scratch).
+#[inline(never)]
 fn rotate(v: &mut [f32], tmp: &mut [f32]) -> f32 {
     let len = v.len();
     if len < 2 || !len.is_power_of_two() || tmp.len() != len {
@@ -250,6 +249,7 @@ fn log_code_up(x: f32, offset: i32) -> u8 {
     c.clamp(1, 255) as u8
 }
 
+#[inline(never)]
 fn log_value(code: u8, offset: i32) -> f32 {
     if code == 0 {
         0.0
@@ -289,31 +289,28 @@ pub fn encode_codes<const D: usize>(
     let len = codec.code_len_for(D, count);
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
-    // μ: the lead band (if any), then the other components.
-    let lead = usize::from(codec.lead);
-    let (lead_bytes, rest) = out.split_at_mut(codec.lead_len_for(count));
-    let (mean_bytes, psi_bytes) = rest
-        .split_at_mut_checked(codec.mean_len_for(D, count) - lead_bytes.len())
-        .ok_or(WireError::BufferFull)?;
+    // μ: the lead band (if any), then the other components, each after its scale byte.
     let mut t = stats.mean;
     let mut tmp = [0.0f32; D];
-    let (t_lead, t_rest) = t.split_at_mut(lead);
-    if lead > 0 {
-        encode_band(
-            t_lead,
-            &mut tmp[..lead],
-            codec.lead_bits_for(count),
-            lead_bytes,
-        );
+    let lead = usize::from(codec.lead);
+    let mut at = 0;
+    for (band, bits) in [
+        (0..lead, codec.lead_bits_for(count)),
+        (lead..D, codec.rest_bits_for(count)),
+    ] {
+        let n = band_len(band.len(), bits);
+        let (Some(v), Some(scratch), Some(o)) = (
+            t.get_mut(band.clone()),
+            tmp.get_mut(band),
+            out.get_mut(at..at + n),
+        ) else {
+            return Err(WireError::BufferFull);
+        };
+        encode_band(v, scratch, bits, o);
+        at += n;
     }
-    encode_band(
-        t_rest,
-        &mut tmp[lead..],
-        codec.rest_bits_for(count),
-        mean_bytes,
-    );
     // A single point has no scatter: nothing is sent for it.
-    let [max_byte, block_bytes @ ..] = psi_bytes else {
+    let Some([max_byte, block_bytes @ ..]) = out.get_mut(at..) else {
         return Ok(len);
     };
     // S: largest entry (rounded up) and block means relative to it.
@@ -360,16 +357,26 @@ pub fn decode_codes<const D: usize>(
     let bytes = bytes
         .get(..codec.code_len_for(D, n))
         .ok_or(WireError::Truncated)?;
-    let lead = usize::from(codec.lead);
     let mut t = [0.0f32; D];
     let mut tmp = [0.0f32; D];
-    let (t_lead, t_rest) = t.split_at_mut(lead);
-    let (lead_bytes, rest) = bytes.split_at(codec.lead_len_for(n));
-    if lead > 0 {
-        decode_band(lead_bytes, codec.lead_bits_for(n), t_lead, &mut tmp[..lead]);
+    let lead = usize::from(codec.lead);
+    let mut at = 0;
+    for (band, bits) in [
+        (0..lead, codec.lead_bits_for(n)),
+        (lead..D, codec.rest_bits_for(n)),
+    ] {
+        let len = band_len(band.len(), bits);
+        let (Some(v), Some(scratch), Some(b)) = (
+            t.get_mut(band.clone()),
+            tmp.get_mut(band),
+            bytes.get(at..at + len),
+        ) else {
+            return Err(WireError::Truncated);
+        };
+        decode_band(b, bits, v, scratch);
+        at += len;
     }
-    decode_band(rest, codec.rest_bits_for(n), t_rest, &mut tmp[lead..]);
-    let psi_at = codec.mean_len_for(D, n);
+    let psi_at = at;
     let psi_max = log_value(bytes.get(psi_at).copied().unwrap_or(0), PSI_OFFSET);
     let mut scatter = [0.0f32; D];
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
@@ -412,8 +419,19 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
     libm::sqrtf(sq)
 }
 
+/// Bytes of a band of `len` components at `bits` each: its scale byte and its packed codes (none for an
+/// empty band).
+const fn band_len(len: usize, bits: u32) -> usize {
+    if len == 0 {
+        0
+    } else {
+        1 + (len * bits as usize).div_ceil(8)
+    }
+}
+
 /// One band of the mean: rotate `t` (`tmp`: scratch of its length), write its scale code and its codes
 /// of `bits` bits (mid-rise uniform, packed LSB first) into `out` (`1 + ⌈len·bits/8⌉` bytes, zeroed).
+#[inline(never)]
 fn encode_band(t: &mut [f32], tmp: &mut [f32], bits: u32, out: &mut [u8]) {
     let peak = rotate(t, tmp);
     let Some((scale_byte, mean_bytes)) = out.split_first_mut() else {
