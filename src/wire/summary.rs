@@ -88,7 +88,7 @@ pub(super) const fn unzigzag(v: u32) -> i32 {
 }
 
 /// Write one summary: key deltas, residency delta with the final flag, point count, codes. `codes` come
-/// from [`encode_codes`]. Returns the bytes written and advances `base`.
+/// from [`encode_codes`](super::encode_codes). Returns the bytes written and advances `base`.
 #[allow(clippy::too_many_arguments)]
 pub fn encode_summary(
     base: &mut DeltaBase,
@@ -105,7 +105,7 @@ pub fn encode_summary(
 }
 
 /// Write a summary's head (key deltas, residency delta with the final flag, point count) and advance
-/// `base`; the caller appends the codes ([`encode_codes`]) right after. Returns the bytes written.
+/// `base`; the caller appends the codes ([`encode_codes`](super::encode_codes)) right after. Returns the bytes written.
 pub fn encode_summary_head(
     base: &mut DeltaBase,
     key: VoxelKey,
