@@ -19,11 +19,14 @@ use super::methods::{
     RunningMean, SegmentationOnly, D,
 };
 use super::metrics::Confusion;
+pub use super::pool::progress;
+use super::pool::{parallel, points, weight};
 use super::sparsification::Scored;
+pub use super::sweep::{Sweep, SweepPoint};
 use crate::sim::encoder::{Encoder, NoiseModel};
 use crate::sim::vocab::{Vocabulary, FULL_DIM};
 use crate::sim::{mix_all, pca, unit, Sequence};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use latentbki::{
     decode::Pca, inference::Spread, sampling::Sampler, sampling::SamplingMode, stats::VoxelStats,
     MapConfig,
@@ -326,7 +329,7 @@ pub struct Uncertainties {
     pub sampling_sound: f32,
 }
 
-fn run_one(
+pub(super) fn run_one(
     method: Method,
     inputs: &Inputs<'_>,
     score: bool,
@@ -401,70 +404,6 @@ pub struct Inputs<'a> {
     pub setup: &'a Setup,
 }
 
-/// A progress bar over `len` steps (drawn only on a terminal).
-pub fn progress(len: u64, message: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:28} [{bar:40}] {pos}/{len} {elapsed}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(message.to_string());
-    bar
-}
-
-/// Worker threads: the machine's cores (at least one); stacks are large because the device map is.
-fn workers() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
-}
-
-/// Run `work` on every job on the worker threads, heaviest (by `weight`) first so the last thread to finish
-/// is not the slowest job started last. Results come back in the order of `jobs`.
-fn parallel<J: Sync, R: Send>(
-    jobs: &[J],
-    weight: impl Fn(&J) -> u64,
-    work: impl Fn(&J) -> R + Sync,
-) -> Vec<R> {
-    let mut queue: Vec<usize> = (0..jobs.len()).collect();
-    queue.sort_by_key(|&i| std::cmp::Reverse(weight(&jobs[i])));
-    let queue = Mutex::new(queue.into_iter());
-    let results: Mutex<Vec<Option<R>>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
-    std::thread::scope(|s| {
-        for _ in 0..workers().min(jobs.len()) {
-            std::thread::Builder::new()
-                .stack_size(256 << 20)
-                .spawn_scoped(s, || loop {
-                    let next = queue.lock().expect("queue").next();
-                    let Some(i) = next else { break };
-                    let r = work(&jobs[i]);
-                    results.lock().expect("results")[i] = Some(r);
-                })
-                .expect("spawning a worker");
-        }
-    });
-    results
-        .into_inner()
-        .expect("results")
-        .into_iter()
-        .map(|r| r.expect("every job ran"))
-        .collect()
-}
-
-/// How heavy a run of `m` is per point, for scheduling: the kernel's reach f³ dominates, and the device map
-/// also quantizes and streams its evictions (about four times the f32 map's time).
-fn weight(m: &Method) -> u64 {
-    match m {
-        Method::OnDevice(f) | Method::OnDeviceInt8(f) => 4 * (10 + u64::from(*f).pow(3)),
-        Method::LatentBki(f) => 10 + u64::from(*f).pow(3),
-        Method::ConvBki(f) => 5 + u64::from(*f).pow(3),
-        _ => 1,
-    }
-}
-
-fn points(frames: &[EncodedFrame]) -> u64 {
-    frames.iter().map(|f| f.points.len() as u64).sum()
-}
-
 /// Run `methods` over the same frames in parallel; `score` names the method whose held-out points get
 /// uncertainties; `link` receives the device map's evictions. Results come back in the order asked.
 pub fn run(
@@ -531,133 +470,4 @@ pub fn run_with_sweep(
         }
     }
     Ok((results, points))
-}
-
-/// One point of the sparsity sweep.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SweepPoint {
-    /// Sensor budget: points (or pixels) per frame asked for.
-    pub budget: usize,
-    /// Points per frame actually returned, on average.
-    pub points_per_frame: f64,
-    /// Filter size.
-    pub filter: u8,
-    /// Accuracy.
-    pub accuracy: f64,
-    /// mIoU.
-    pub miou: f64,
-}
-
-/// The sparsity sweep (paper Fig. 3): accuracy and mIoU of LatentBKI with each filter size at each sensor
-/// budget. Each budget's sequence is built and encoded once; the runs go to [`run_with_sweep`].
-pub struct Sweep {
-    runs: Vec<SweepRun>,
-    filters: Vec<u8>,
-}
-
-struct SweepRun {
-    budget: usize,
-    config: MapConfig,
-    frames: Vec<EncodedFrame>,
-    points_per_frame: f64,
-}
-
-impl Sweep {
-    /// No sweep.
-    pub fn none() -> Self {
-        Sweep {
-            runs: Vec::new(),
-            filters: Vec::new(),
-        }
-    }
-
-    /// The sequence `make(b)` of each budget `b`, encoded, to be run with each of `filters`.
-    pub fn new(
-        make: &dyn Fn(usize) -> Sequence,
-        budgets: &[usize],
-        filters: &[u8],
-        dec: &Decoding,
-        setup: &Setup,
-    ) -> Self {
-        let runs = budgets
-            .iter()
-            .map(|&budget| {
-                let seq = make(budget);
-                SweepRun {
-                    budget,
-                    config: seq.config,
-                    frames: encode(&seq, dec, setup),
-                    points_per_frame: seq.points() as f64 / seq.frames.len().max(1) as f64,
-                }
-            })
-            .collect();
-        Sweep {
-            runs,
-            filters: filters.to_vec(),
-        }
-    }
-
-    /// (run, filter) pairs, budget by budget, in the order of the results.
-    fn jobs(&self) -> impl Iterator<Item = (usize, u8)> + '_ {
-        (0..self.runs.len()).flat_map(|r| self.filters.iter().map(move |&f| (r, f)))
-    }
-
-    /// Frames integrated over all runs (progress steps).
-    fn steps(&self) -> usize {
-        self.runs.iter().map(|r| r.frames.len()).sum::<usize>() * self.filters.len()
-    }
-
-    /// One run; only its scores are kept (the map is dropped here, not held until the pool is done).
-    fn run(
-        &self,
-        r: usize,
-        filter: u8,
-        dec: &Decoding,
-        setup: &Setup,
-        bar: &ProgressBar,
-    ) -> anyhow::Result<SweepPoint> {
-        let run = &self.runs[r];
-        let inputs = Inputs {
-            frames: &run.frames,
-            config: &run.config,
-            dec,
-            setup,
-        };
-        let res = run_one(Method::LatentBki(filter), &inputs, false, None, bar)?;
-        Ok(SweepPoint {
-            budget: run.budget,
-            points_per_frame: run.points_per_frame,
-            filter,
-            accuracy: res.confusion.accuracy(),
-            miou: res.confusion.miou(),
-        })
-    }
-}
-
-/// The results table in Markdown.
-pub fn table(scene: &str, results: &[MethodResult], notes: &str) -> String {
-    let mut s = format!("### {scene}\n\n{notes}\n\n| Method | Acc. (%) | mIoU (%) | Unknown (%) | Acc. where observed (%) | Voxels | Uncertainty |\n|---|---:|---:|---:|---:|---:|---|\n");
-    for r in results {
-        let total = r.confusion.total().max(1) as f64;
-        s += &format!(
-            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} |\n",
-            r.method.label(),
-            100.0 * r.confusion.accuracy(),
-            100.0 * r.confusion.miou(),
-            100.0 * r.confusion.unknown() as f64 / total,
-            100.0 * r.confusion.accuracy() * total
-                / (total - r.confusion.unknown() as f64).max(1.0),
-            if r.voxels == 0 {
-                "–".to_string()
-            } else {
-                r.voxels.to_string()
-            },
-            if r.method.has_uncertainty() {
-                "yes"
-            } else {
-                "no"
-            },
-        );
-    }
-    s
 }

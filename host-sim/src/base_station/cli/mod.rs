@@ -5,160 +5,34 @@
 //! Bytes are read on their own thread, so the receiver commits at the bounded interval (`--commit-ms`)
 //! and answers SIGINT/SIGTERM even while the port is silent: the signal commits, prints the summary and
 //! exits cleanly (a second signal exits at once).
+//!
+//! The options are in `args`, the reading of the user's vocabulary (`--pca`, `--classes`, `--query`) in
+//! `vocabulary`, the byte pump in `receive`.
 
-use super::export::{write_ply, write_pngs, MAX_SIDE};
+use super::export::{write_ply, write_pngs};
 use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
-use super::view::{ViewOptions, Viewer, ViewerSummary, DEFAULT_ADDR};
+use super::view::{ViewOptions, Viewer, ViewerSummary};
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
-use crate::npy_io::NpzReader;
 
+mod args;
 mod receive;
+mod vocabulary;
 use anyhow::{bail, Context, Result};
-use clap::Args;
-use latentbki::wire::feature_space_id;
-use latentbki::{decode::Codebook, decode::Pca};
+pub use args::{BaseStationArgs, MapInfoArgs, MapQueryArgs, OutputArgs, ViewArgs};
+use latentbki::decode::Codebook;
 pub use receive::{pump, pump_with, spawn_reader, Ending, PumpOptions};
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
+pub use vocabulary::Vocab;
+use vocabulary::{check_feature_space, read_vocabulary};
 
 /// Feature dimension the base station is built for (the wire's D).
 pub const DIM: usize = 64;
 /// Full text-embedding dimension.
 pub const FULL: usize = 384;
-
-/// Options of `host-sim base-station`.
-#[derive(Args, Debug)]
-pub struct BaseStationArgs {
-    /// Where the bytes come from: a file or a pty path, or `-` for stdin. Not with `--serial`.
-    input: Option<PathBuf>,
-    /// Read from a serial port (e.g. /dev/ttyUSB0) instead.
-    #[arg(long, conflicts_with = "input")]
-    serial: Option<String>,
-    /// Serial baud rate.
-    #[arg(long, default_value_t = 115_200)]
-    baud: u32,
-    /// Stop after this many seconds (serial ports and ptys never end by themselves).
-    #[arg(long, value_parser = parse_duration, allow_negative_numbers = true)]
-    duration: Option<Duration>,
-    /// The global map database (SQLite): created if missing, continued if present (sessions included:
-    /// frames already merged are recognised). Without it the map lives in memory only.
-    #[arg(long)]
-    map: Option<PathBuf>,
-    /// Commit accepted frames to the database at least this often (milliseconds): a crash loses at most
-    /// the frames of the last interval, and counts them lost on restart.
-    #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
-    commit_ms: u64,
-    #[command(flatten)]
-    view: ViewArgs,
-    #[command(flatten)]
-    out: OutputArgs,
-}
-
-/// The live 3D view (Foxglove) and the MCAP recording of the base station's map.
-#[derive(Args, Debug, Clone)]
-pub struct ViewArgs {
-    /// Serve the map live to Foxglove or Lichtblick (Foxglove WebSocket protocol) at ADDR [default:
-    /// 127.0.0.1:8765, this machine only; name another address to serve beyond it]. Write `--view=ADDR`
-    /// before a positional argument.
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_ADDR)]
-    pub view: Option<std::net::SocketAddr>,
-    /// Record the view's topics to this MCAP file (Foxglove, Lichtblick, `ros2 bag`, PyPI `mcap` read it).
-    #[arg(long, value_name = "FILE.mcap")]
-    pub record: Option<PathBuf>,
-    /// At most this many view updates a second (changed voxels are coalesced in between).
-    #[arg(long, default_value_t = 10.0, value_parser = parse_rate)]
-    pub view_hz: f64,
-    /// Messages queued per viewer client before its oldest are dropped (a client that does not read costs
-    /// at most this much memory).
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=100_000))]
-    pub view_backlog: u64,
-}
-
-impl ViewArgs {
-    /// Whether a view or a recording is asked for.
-    pub fn wanted(&self) -> bool {
-        self.view.is_some() || self.record.is_some()
-    }
-    /// Check the recording's path before anything is read.
-    pub fn check(&self) -> Result<()> {
-        if let Some(p) = &self.record {
-            check_output("--record", p, false)?;
-        }
-        Ok(())
-    }
-}
-
-/// `--view-hz`: a finite rate in (0, 1000].
-fn parse_rate(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(r) if r.is_finite() && r > 0.0 && r <= 1000.0 => Ok(r),
-        _ => Err(format!(
-            "`{s}`: give a number of updates per second in (0, 1000]"
-        )),
-    }
-}
-
-/// What to show of the map at the end: vocabulary, query, pictures.
-#[derive(Args, Debug)]
-pub struct OutputArgs {
-    /// PCA of the robots' features (.npz with `mean` (384) and `components` (64×384), float32), to decode
-    /// labels and queries; it must match the robots' feature-space id.
-    #[arg(long)]
-    pca: Option<PathBuf>,
-    /// Vocabulary: comma-separated phrases of the built-in embedding table (default: the 12 ASPRS classes).
-    #[arg(long)]
-    classes: Option<String>,
-    /// Text query for the heatmap (a phrase of the built-in table).
-    #[arg(long)]
-    query: Option<String>,
-    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`, `-gain.png` (information
-    /// gain: where to look next).
-    #[arg(long)]
-    png: Option<PathBuf>,
-    /// Pixels per voxel in the PNGs (1..=16384; the image is at most 16384 pixels per side).
-    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_SIDE)))]
-    scale: u32,
-    /// Write the map as an ASCII PLY point cloud.
-    #[arg(long)]
-    ply: Option<PathBuf>,
-}
-
-/// Options of `host-sim map-info`.
-#[derive(Args, Debug)]
-pub struct MapInfoArgs {
-    /// The map database (opened read-only; a running base station keeps writing it).
-    db: PathBuf,
-}
-
-/// Options of `host-sim map-query`.
-#[derive(Args, Debug)]
-pub struct MapQueryArgs {
-    /// The map database (opened read-only; a running base station keeps writing it).
-    db: PathBuf,
-    /// With --query: list this many best-matching voxels.
-    #[arg(long, default_value_t = 10)]
-    top: usize,
-    /// Export the map as one full scene of the live view's topics to this MCAP file.
-    #[arg(long, value_name = "FILE.mcap")]
-    mcap: Option<PathBuf>,
-    #[command(flatten)]
-    out: OutputArgs,
-}
-
-/// `--duration`: seconds, finite, >= 0 and representable as a [`Duration`].
-fn parse_duration(s: &str) -> Result<Duration, String> {
-    let secs: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a number of seconds"))?;
-    if !secs.is_finite() || secs < 0.0 {
-        return Err(format!("{s} seconds: give a finite number of seconds >= 0"));
-    }
-    Duration::try_from_secs_f64(secs).map_err(|_| format!("{s} seconds is too long a duration"))
-}
 
 /// Check that `path` (given with `flag`) can be written: its folder exists and it is not a folder itself.
 fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
@@ -177,91 +51,6 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
         bail!("{flag} {}: is a folder, not a file", path.display());
     }
     Ok(())
-}
-
-/// The vocabulary (`--pca`, `--classes`) and the query (`--query`) codebooks.
-pub type Vocab = (Vec<String>, Codebook<DIM, VOCAB_CAP>, Box<Pca<DIM, FULL>>);
-
-fn read_vocabulary(args: &OutputArgs) -> Result<(Option<Vocab>, Option<Codebook<DIM, VOCAB_CAP>>)> {
-    let Some(p) = &args.pca else {
-        if args.classes.is_some() {
-            bail!("--classes needs --pca (the PCA the robots used)");
-        }
-        if args.query.is_some() {
-            bail!("--query needs --pca (the PCA the robots used)");
-        }
-        return Ok((None, None));
-    };
-    let pca = read_pca(p)?;
-    let table = crate::sim::vocab::Vocabulary::builtin();
-    let names: Vec<String> = match &args.classes {
-        Some(c) => c.split(',').map(|s| s.trim().to_string()).collect(),
-        None => table.phrases().into_iter().take(12).collect(),
-    };
-    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
-    let emb = table
-        .embeddings(&refs)
-        .map_err(|e| anyhow::anyhow!("--classes: {e}"))?;
-    let cb = Codebook::from_pca(&pca, &emb).map_err(|e| anyhow::anyhow!("vocabulary: {e}"))?;
-    let query = match &args.query {
-        Some(q) => {
-            let e = table
-                .embeddings(&[q.as_str()])
-                .map_err(|e| anyhow::anyhow!("--query: {e}"))?;
-            Some(
-                Codebook::<DIM, VOCAB_CAP>::from_pca(&pca, &e)
-                    .map_err(|e| anyhow::anyhow!("query: {e}"))?,
-            )
-        }
-        None => None,
-    };
-    Ok((Some((names, cb, pca)), query))
-}
-
-/// The PCA must be the robots' (the map's feature-space id) or the labels would be meaningless.
-fn check_feature_space(
-    args: &OutputArgs,
-    vocab: Option<&Vocab>,
-    map: &GlobalMap<DIM>,
-) -> Result<()> {
-    if let (Some(p), Some((_, _, pca))) = (&args.pca, vocab) {
-        let id = feature_space_id(pca);
-        if id != map.config().feature_space {
-            bail!(
-                "{}: feature-space id {id:#010x} is not the robots' ({:#010x}): labels would be meaningless",
-                p.display(),
-                map.config().feature_space
-            );
-        }
-    }
-    Ok(())
-}
-
-/// The `--pca` file, as [`crate::npy_io::write_pca_npz`] writes it (and numpy's `savez`).
-fn read_pca(path: &Path) -> Result<Box<Pca<DIM, FULL>>> {
-    let mut npz = NpzReader::open(path)?;
-    let mut array = |name: &str, len: usize| -> Result<Vec<f32>> {
-        let (_, v) = npz.array::<f32>(name)?;
-        if v.len() != len {
-            bail!(
-                "{}: `{name}` has {} values, expected {len}",
-                path.display(),
-                v.len()
-            );
-        }
-        Ok(v)
-    };
-    let mean = array("mean", FULL)?;
-    let comps = array("components", DIM * FULL)?;
-    let mut pca = Box::new(Pca {
-        mean: [0.0; FULL],
-        components: [[0.0; FULL]; DIM],
-    });
-    pca.mean.copy_from_slice(&mean);
-    for (row, chunk) in pca.components.iter_mut().zip(comps.chunks_exact(FULL)) {
-        row.copy_from_slice(chunk);
-    }
-    Ok(pca)
 }
 
 /// Check the output options before anything is read.

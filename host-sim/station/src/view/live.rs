@@ -1,44 +1,41 @@
 //! The view thread: inbox from ingest in, scene updates out to the WebSocket server and the recording.
+//! This module is ingest's side ([`Viewer`]: start, push, finish); the thread's loop is `worker`.
 
 use super::guard::{self, QueryParameter, Subscriptions, ViewRequests};
-use super::scene::{Layer, Scene};
+use super::scene::Layer;
+use super::worker::Worker;
 use super::{ViewError, ViewOptions, LEGEND_TOPIC, STATUS_TOPIC};
-use crate::export::label_colour;
 use crate::{BaseStation, GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
-use foxglove::messages::{SceneUpdate, Timestamp};
-use foxglove::{
-    Context, Encode, McapWriterHandle, RawChannel, Schema, SinkId, WebSocketServerHandle,
-};
+use foxglove::messages::SceneUpdate;
+use foxglove::{Context, Encode, RawChannel, Schema, SinkId, WebSocketServerHandle};
+use latentbki::key::VoxelKey;
 use latentbki::wire::SessionConfig;
-use latentbki::{decode::Codebook, key::VoxelKey};
 use std::collections::{BTreeMap, HashMap};
-use std::fs::File;
-use std::io::BufWriter;
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 /// Arrival times kept per view update at most (a flood of tiny chunks must not grow the inbox).
-const MAX_ARRIVALS: usize = 4096;
+pub(super) const MAX_ARRIVALS: usize = 4096;
 /// Latency samples kept at most.
-const MAX_SAMPLES: usize = 1 << 20;
+pub(super) const MAX_SAMPLES: usize = 1 << 20;
 
 /// The link's counters as ingest last saw them.
-type LinkCounters = (ReceiveStats, BTreeMap<(u16, u32), SessionState>);
+pub(super) type LinkCounters = (ReceiveStats, BTreeMap<(u16, u32), SessionState>);
 
 /// What ingest hands the view thread.
-struct Inbox<const D: usize> {
-    config: Option<SessionConfig>,
-    voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
-    link: Option<LinkCounters>,
-    arrivals: Vec<Instant>,
-    full: Vec<(SinkId, String)>,
-    phrase: Option<String>,
-    stop: bool,
+pub(super) struct Inbox<const D: usize> {
+    pub(super) config: Option<SessionConfig>,
+    pub(super) voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
+    pub(super) link: Option<LinkCounters>,
+    pub(super) arrivals: Vec<Instant>,
+    pub(super) full: Vec<(SinkId, String)>,
+    pub(super) phrase: Option<String>,
+    pub(super) stop: bool,
 }
 
 impl<const D: usize> Inbox<D> {
-    fn is_empty(&self) -> bool {
+    pub(super) fn is_empty(&self) -> bool {
         self.voxels.is_empty()
             && self.link.is_none()
             && self.full.is_empty()
@@ -47,14 +44,14 @@ impl<const D: usize> Inbox<D> {
     }
 }
 
-struct Shared<const D: usize> {
-    inbox: Mutex<Inbox<D>>,
-    wake: Condvar,
-    phrase: Mutex<String>,
+pub(super) struct Shared<const D: usize> {
+    pub(super) inbox: Mutex<Inbox<D>>,
+    pub(super) wake: Condvar,
+    pub(super) phrase: Mutex<String>,
 }
 
 impl<const D: usize> Shared<D> {
-    fn inbox(&self) -> std::sync::MutexGuard<'_, Inbox<D>> {
+    pub(super) fn inbox(&self) -> std::sync::MutexGuard<'_, Inbox<D>> {
         self.inbox.lock().unwrap_or_else(PoisonError::into_inner)
     }
 }
@@ -106,12 +103,12 @@ pub struct Viewer<const D: usize> {
     port: Option<u16>,
 }
 
-struct Channels {
+pub(super) struct Channels {
     /// The context the channels and sinks live in (dropping it would close them).
-    _context: Arc<Context>,
-    layers: Vec<(Layer, Arc<RawChannel>)>,
-    legend: Arc<RawChannel>,
-    status: Arc<RawChannel>,
+    pub(super) _context: Arc<Context>,
+    pub(super) layers: Vec<(Layer, Arc<RawChannel>)>,
+    pub(super) legend: Arc<RawChannel>,
+    pub(super) status: Arc<RawChannel>,
 }
 
 fn json_channel(ctx: &Arc<Context>, topic: &str, name: &str) -> Arc<RawChannel> {
@@ -278,238 +275,5 @@ impl<const D: usize> Drop for Viewer<D> {
     fn drop(&mut self) {
         self.shared.inbox().stop = true;
         self.shared.wake.notify_one();
-    }
-}
-
-struct Worker<const D: usize, const K: usize> {
-    shared: Arc<Shared<D>>,
-    channels: Channels,
-    interval: Duration,
-    vocab: Option<(Vec<String>, Codebook<D, K>)>,
-    phrases: Option<super::PhraseEncoder<D, K>>,
-    map: Option<GlobalMap<D>>,
-    scene: Option<Scene<D, K>>,
-    query: Option<Codebook<D, K>>,
-    /// Voxels in the scene when its colour ranges were last fixed.
-    fixed_at: usize,
-    summary: ViewerSummary,
-    /// The last link status sent (a new subscriber gets it at once).
-    last_status: Option<Vec<u8>>,
-    mcap: Option<McapWriterHandle<BufWriter<File>>>,
-    refused_at_start: u64,
-}
-
-impl<const D: usize, const K: usize> Worker<D, K> {
-    fn run(mut self) -> ViewerSummary {
-        let started = Instant::now();
-        let mut last = Instant::now() - self.interval;
-        loop {
-            // At most one update per interval.
-            let since = last.elapsed();
-            if since < self.interval {
-                std::thread::sleep(self.interval - since);
-            }
-            let batch = {
-                let mut inbox = self.shared.inbox();
-                while inbox.is_empty() && !inbox.stop {
-                    inbox = self
-                        .shared
-                        .wake
-                        .wait(inbox)
-                        .unwrap_or_else(PoisonError::into_inner);
-                }
-                let stop = inbox.stop;
-                std::mem::replace(
-                    &mut *inbox,
-                    Inbox {
-                        config: None,
-                        voxels: HashMap::new(),
-                        link: None,
-                        arrivals: Vec::new(),
-                        full: Vec::new(),
-                        phrase: None,
-                        stop,
-                    },
-                )
-            };
-            last = Instant::now();
-            self.update(batch.config, batch.voxels, batch.phrase);
-            if let Some((stats, sessions)) = batch.link {
-                let status = self.status(&stats, &sessions);
-                self.send(&self.channels.status.clone(), &status, None);
-                self.last_status = Some(status);
-            }
-            for (sink, topic) in batch.full {
-                self.full_to(sink, &topic);
-            }
-            let done = Instant::now();
-            for a in batch.arrivals {
-                if self.summary.latencies.len() < MAX_SAMPLES {
-                    self.summary.latencies.push(done.duration_since(a));
-                }
-            }
-            if batch.stop {
-                break;
-            }
-        }
-        self.summary.voxels = self.scene.as_ref().map_or(0, Scene::len);
-        self.summary.elapsed = started.elapsed();
-        self.summary.refused = guard::refused() - self.refused_at_start;
-        if let Some(m) = self.mcap.take() {
-            let _ = m.close();
-        }
-        self.summary
-    }
-
-    fn send(&mut self, ch: &Arc<RawChannel>, bytes: &[u8], sink: Option<SinkId>) {
-        ch.log_to_sink(bytes, sink);
-        self.summary.messages += 1;
-        self.summary.bytes += bytes.len() as u64;
-    }
-
-    fn send_scene(&mut self, layer: Layer, buf: &[u8], sink: Option<SinkId>) {
-        let ch = self.channels.layers[layer as usize].1.clone();
-        self.send(&ch, buf, sink);
-    }
-
-    fn update(
-        &mut self,
-        config: Option<SessionConfig>,
-        voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
-        phrase: Option<String>,
-    ) {
-        let mut full = false;
-        if let (None, Some(c)) = (&self.map, config) {
-            if let Ok(m) = GlobalMap::new(c) {
-                self.scene = Some(Scene::new(m.map_config().voxel_size()));
-                self.map = Some(m);
-                full = true;
-            }
-        }
-        let mut heat_full = false;
-        if let Some(p) = phrase {
-            self.query = match (&self.phrases, p.is_empty()) {
-                (_, true) | (None, _) => None,
-                (Some(enc), false) => match enc(&p) {
-                    Ok(q) => Some(q),
-                    Err(e) => {
-                        self.summary.phrase_errors.push(e);
-                        None
-                    }
-                },
-            };
-            if let Some(s) = &mut self.scene {
-                s.set_query(self.query.as_ref());
-            }
-            heat_full = true;
-            let legend = self.legend(&p);
-            self.send(&self.channels.legend.clone(), &legend, None);
-        }
-        let (Some(map), Some(scene)) = (&mut self.map, &mut self.scene) else {
-            return;
-        };
-        let changed: Vec<VoxelKey> = voxels.keys().copied().collect();
-        for (k, v) in voxels {
-            map.insert_raw(k, v);
-        }
-        let affected = Scene::<D, K>::affected(map, changed);
-        let dirty = scene.update(
-            map,
-            &affected,
-            self.vocab.as_ref().map(|v| &v.1),
-            self.query.as_ref(),
-        );
-        // Colour ranges are fixed at a full scene and again each time the map has doubled since.
-        if full || scene.len() >= 2 * self.fixed_at.max(32) {
-            scene.fix_ranges();
-            self.fixed_at = scene.len();
-            full = true;
-        }
-        let time = Timestamp::now();
-        self.summary.updates += 1;
-        for layer in Layer::ALL {
-            let scene = self.scene.as_mut().expect("set above");
-            let buf = if full || (heat_full && layer == Layer::Heat) {
-                scene.full_bytes(layer, time)
-            } else if !dirty.is_empty() {
-                scene.update_bytes(layer, &dirty, time)
-            } else {
-                continue;
-            };
-            self.send_scene(layer, &buf, None);
-        }
-    }
-
-    fn full_to(&mut self, sink: SinkId, topic: &str) {
-        if topic == LEGEND_TOPIC {
-            let legend = self.legend(&self.shared.phrase());
-            self.send(&self.channels.legend.clone(), &legend, Some(sink));
-            return;
-        }
-        if topic == STATUS_TOPIC {
-            if let Some(status) = self.last_status.clone() {
-                self.send(&self.channels.status.clone(), &status, Some(sink));
-            }
-            return;
-        }
-        let Some(&(layer, _)) = self
-            .channels
-            .layers
-            .iter()
-            .find(|(l, _)| l.topic() == topic)
-        else {
-            return;
-        };
-        let time = Timestamp::now();
-        let buf = match &mut self.scene {
-            Some(s) => s.full_bytes(layer, time),
-            None => Scene::<D, K>::new(1.0).full_bytes(layer, time),
-        };
-        self.send_scene(layer, &buf, Some(sink));
-    }
-
-    fn legend(&self, phrase: &str) -> Vec<u8> {
-        let classes: Vec<_> = self.vocab.as_ref().map_or(Vec::new(), |(names, _)| {
-            names
-                .iter()
-                .enumerate()
-                .map(|(i, n)| serde_json::json!({"index": i, "name": n, "rgb": label_colour(i)}))
-                .collect()
-        });
-        serde_json::to_vec(&serde_json::json!({
-            "classes": classes,
-            "unclassified_rgb": [128, 128, 128],
-            "query": phrase,
-            "query_error": self.summary.phrase_errors.last(),
-            "robots": "palette by robot id (the class palette); white: several robots",
-            "heat": "viridis over the cosine scores when the phrase was set; exact score in metadata",
-            "uncertainty": "viridis over log E-optimality (authors' t_var, lambda > 2); grey: undefined",
-        }))
-        .expect("JSON")
-    }
-
-    fn status(&self, s: &ReceiveStats, sessions: &BTreeMap<(u16, u32), SessionState>) -> Vec<u8> {
-        let sessions: Vec<_> = sessions
-            .iter()
-            .map(|((robot, session), st)| {
-                serde_json::json!({
-                    "robot": robot, "session": session, "received": st.seq.received,
-                    "lost": st.seq.lost, "late": st.seq.late,
-                    "robot_frames_sent": st.link.map(|l| l.frames_sent),
-                    "robot_refused": st.link.map(|l| l.refused),
-                })
-            })
-            .collect();
-        let r = &s.rejected;
-        let d = &s.decoder;
-        serde_json::to_vec(&serde_json::json!({
-            "frames": s.frames, "merged": s.merged, "live": s.updated, "ignored": s.ignored,
-            "lost": s.lost, "late": s.late, "duplicates": r.duplicate_frames,
-            "refused": d.crc_errors + d.cobs_errors + d.too_short + d.overflows + r.version
-                + r.malformed + r.wrong_config + r.invalid_voxel + r.too_old,
-            "viewer_clients_refused": guard::refused() - self.refused_at_start,
-            "sessions": sessions,
-        }))
-        .expect("JSON")
     }
 }

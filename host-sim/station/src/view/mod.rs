@@ -28,6 +28,7 @@
 pub mod guard;
 mod live;
 pub mod scene;
+mod worker;
 
 /// The Foxglove SDK the view is built on (its message types, for callers of [`Scene`]).
 pub use foxglove;

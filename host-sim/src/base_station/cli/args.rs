@@ -1,0 +1,141 @@
+//! The options of `host-sim base-station`, `map-info` and `map-query` (clap) with their value parsers:
+//! what a user can ask for, apart from what the commands do with it ([`super`]).
+
+use super::super::export::MAX_SIDE;
+use super::super::view::DEFAULT_ADDR;
+use super::check_output;
+use anyhow::Result;
+use clap::Args;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Options of `host-sim base-station`.
+#[derive(Args, Debug)]
+pub struct BaseStationArgs {
+    /// Where the bytes come from: a file or a pty path, or `-` for stdin. Not with `--serial`.
+    pub(super) input: Option<PathBuf>,
+    /// Read from a serial port (e.g. /dev/ttyUSB0) instead.
+    #[arg(long, conflicts_with = "input")]
+    pub(super) serial: Option<String>,
+    /// Serial baud rate.
+    #[arg(long, default_value_t = 115_200)]
+    pub(super) baud: u32,
+    /// Stop after this many seconds (serial ports and ptys never end by themselves).
+    #[arg(long, value_parser = parse_duration, allow_negative_numbers = true)]
+    pub(super) duration: Option<Duration>,
+    /// The global map database (SQLite): created if missing, continued if present (sessions included:
+    /// frames already merged are recognised). Without it the map lives in memory only.
+    #[arg(long)]
+    pub(super) map: Option<PathBuf>,
+    /// Commit accepted frames to the database at least this often (milliseconds): a crash loses at most
+    /// the frames of the last interval, and counts them lost on restart.
+    #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    pub(super) commit_ms: u64,
+    #[command(flatten)]
+    pub(super) view: ViewArgs,
+    #[command(flatten)]
+    pub(super) out: OutputArgs,
+}
+
+/// The live 3D view (Foxglove) and the MCAP recording of the base station's map.
+#[derive(Args, Debug, Clone)]
+pub struct ViewArgs {
+    /// Serve the map live to Foxglove or Lichtblick (Foxglove WebSocket protocol) at ADDR [default:
+    /// 127.0.0.1:8765, this machine only; name another address to serve beyond it]. Write `--view=ADDR`
+    /// before a positional argument.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_ADDR)]
+    pub view: Option<std::net::SocketAddr>,
+    /// Record the view's topics to this MCAP file (Foxglove, Lichtblick, `ros2 bag`, PyPI `mcap` read it).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// At most this many view updates a second (changed voxels are coalesced in between).
+    #[arg(long, default_value_t = 10.0, value_parser = parse_rate)]
+    pub view_hz: f64,
+    /// Messages queued per viewer client before its oldest are dropped (a client that does not read costs
+    /// at most this much memory).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub view_backlog: u64,
+}
+
+impl ViewArgs {
+    /// Whether a view or a recording is asked for.
+    pub fn wanted(&self) -> bool {
+        self.view.is_some() || self.record.is_some()
+    }
+    /// Check the recording's path before anything is read.
+    pub fn check(&self) -> Result<()> {
+        if let Some(p) = &self.record {
+            check_output("--record", p, false)?;
+        }
+        Ok(())
+    }
+}
+
+/// `--view-hz`: a finite rate in (0, 1000].
+fn parse_rate(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(r) if r.is_finite() && r > 0.0 && r <= 1000.0 => Ok(r),
+        _ => Err(format!(
+            "`{s}`: give a number of updates per second in (0, 1000]"
+        )),
+    }
+}
+
+/// What to show of the map at the end: vocabulary, query, pictures.
+#[derive(Args, Debug)]
+pub struct OutputArgs {
+    /// PCA of the robots' features (.npz with `mean` (384) and `components` (64×384), float32), to decode
+    /// labels and queries; it must match the robots' feature-space id.
+    #[arg(long)]
+    pub(super) pca: Option<PathBuf>,
+    /// Vocabulary: comma-separated phrases of the built-in embedding table (default: the 12 ASPRS classes).
+    #[arg(long)]
+    pub(super) classes: Option<String>,
+    /// Text query for the heatmap (a phrase of the built-in table).
+    #[arg(long)]
+    pub(super) query: Option<String>,
+    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`, `-gain.png` (information
+    /// gain: where to look next).
+    #[arg(long)]
+    pub(super) png: Option<PathBuf>,
+    /// Pixels per voxel in the PNGs (1..=16384; the image is at most 16384 pixels per side).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_SIDE)))]
+    pub(super) scale: u32,
+    /// Write the map as an ASCII PLY point cloud.
+    #[arg(long)]
+    pub(super) ply: Option<PathBuf>,
+}
+
+/// Options of `host-sim map-info`.
+#[derive(Args, Debug)]
+pub struct MapInfoArgs {
+    /// The map database (opened read-only; a running base station keeps writing it).
+    pub(super) db: PathBuf,
+}
+
+/// Options of `host-sim map-query`.
+#[derive(Args, Debug)]
+pub struct MapQueryArgs {
+    /// The map database (opened read-only; a running base station keeps writing it).
+    pub(super) db: PathBuf,
+    /// With --query: list this many best-matching voxels.
+    #[arg(long, default_value_t = 10)]
+    pub(super) top: usize,
+    /// Export the map as one full scene of the live view's topics to this MCAP file.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub(super) mcap: Option<PathBuf>,
+    #[command(flatten)]
+    pub(super) out: OutputArgs,
+}
+
+/// `--duration`: seconds, finite, >= 0 and representable as a [`Duration`].
+fn parse_duration(s: &str) -> Result<Duration, String> {
+    let secs: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if !secs.is_finite() || secs < 0.0 {
+        return Err(format!("{s} seconds: give a finite number of seconds >= 0"));
+    }
+    Duration::try_from_secs_f64(secs).map_err(|_| format!("{s} seconds is too long a duration"))
+}

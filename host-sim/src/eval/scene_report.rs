@@ -1,0 +1,224 @@
+//! One scene's experiment end to end: its sequences, the decoding, every method's run (and the sparsity
+//! sweep), the tables, the sparsification analysis and the pictures, gathered in a [`Report`]. Apart from
+//! [`super::scenes`], which says *what* is mapped (the scene, its sensor and map scale); this is *how* an
+//! evaluation of it runs.
+
+use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
+use super::figures::{self, TopDown};
+use super::methods::{Decoder, Radio};
+use super::scenes::{tile_query, Scene, SceneOptions, SceneSource};
+use super::sparsification::{self, Sparsification};
+use crate::sim::vocab::Vocabulary;
+use anyhow::{Context, Result};
+use std::path::{Path, PathBuf};
+
+/// Everything one scene's experiment produced.
+pub struct Report {
+    /// Scene.
+    pub scene: Scene,
+    /// Method results, in table order.
+    pub results: Vec<MethodResult>,
+    /// Sparsification of the LatentBKI f = 3 map's uncertainty.
+    pub sparsification: Sparsification,
+    /// The sparsity sweep (empty if not run).
+    pub sweep: Vec<SweepPoint>,
+    /// The Markdown section for this scene.
+    pub markdown: String,
+    /// PNGs written.
+    pub figures: Vec<PathBuf>,
+    /// One line saying what to change when the map left most held-out points unknown.
+    pub hint: Option<String>,
+}
+
+/// Run one scene's experiment and write its pictures into `out/<scene>/`.
+pub fn run(
+    scene: Scene,
+    options: &SceneOptions,
+    setup: &Setup,
+    out: &Path,
+    sweep: bool,
+    link: Option<Box<dyn Radio>>,
+) -> Result<Report> {
+    let vocab = Vocabulary::builtin();
+    let source = SceneSource::new(scene, options, setup.seed)?;
+    if let (Some(t), Some(_)) = (source.tile(), &options.tile.las) {
+        println!(
+            "{}: {}; map scale: {}",
+            source.title(),
+            t.summary(),
+            source.scale_note()
+        );
+    }
+    let train = source.sequence(source.budget(), true);
+    let test = source.sequence(source.budget(), false);
+    source.check_enough(&train, &test)?;
+    let setup = &Setup {
+        device_window: source.device_window(&test.config),
+        ..*setup
+    };
+    let dec = experiment::decoding(&vocab, &train, setup)?;
+    let frames = experiment::encode(&test, &dec, setup);
+    let f = test.config.filter_size();
+    let methods = Method::for_filter(f);
+    let budgets = match scene {
+        Scene::Tile => &options.sweep_tile,
+        Scene::Indoor => &options.sweep_indoor,
+    };
+    let sweep = if sweep && !budgets.is_empty() {
+        experiment::Sweep::new(
+            &|b| source.sequence(b, false),
+            budgets,
+            &options.sweep_filters,
+            &dec,
+            setup,
+        )
+    } else {
+        experiment::Sweep::none()
+    };
+    let (results, sweep_points) = experiment::run_with_sweep(
+        &methods,
+        &experiment::Inputs {
+            frames: &frames,
+            config: &test.config,
+            dec: &dec,
+            setup,
+        },
+        Some(Method::LatentBki(f)),
+        link,
+        &sweep,
+        &format!("{}: methods and sweep", scene.name()),
+    )?;
+    drop(sweep);
+    let scored = &results
+        .iter()
+        .find(|r| r.method == Method::LatentBki(f))
+        .expect("LatentBKI ran at the scene's filter size")
+        .scored;
+    let spars = sparsification::analyse(scored, dec.classes.len());
+
+    // Pictures, from the on-device map (what the robot holds plus what it streamed).
+    let dir = out.join(scene.name());
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let device = results
+        .iter()
+        .find(|r| matches!(r.method, Method::OnDevice(_)))
+        .or_else(|| results.iter().find(|r| r.method == Method::LatentBki(f)))
+        .expect("a LatentBKI map ran");
+    let snap = device.mapper.snapshot();
+    let top = TopDown::new(&snap, &test.config, test.cutaway_height);
+    let which = device.method.label();
+    let mut figs = Vec::new();
+    let fig = |e: Box<dyn std::error::Error + Send + Sync>| anyhow::anyhow!("drawing: {e}");
+    let p = dir.join("semantic_map.png");
+    figures::semantic_map(
+        &p,
+        &format!("{}: top-down semantic map ({which})", scene.name()),
+        &top,
+        &test.config,
+        &dec.decoder,
+        &dec.classes,
+    )
+    .map_err(fig)?;
+    figs.push(p);
+    let queries: Vec<String> = if options.queries.is_empty() {
+        match scene {
+            Scene::Tile => tile_query(&dec.classes, &vocab).into_iter().collect(),
+            Scene::Indoor => vec![scene.default_query().to_string()],
+        }
+    } else {
+        options.queries.clone()
+    };
+    for q in &queries {
+        let cb =
+            Decoder::from_pca(&dec.pca, &[*vocab.get(q)?]).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let p = dir.join(format!("query_{}.png", q.replace(' ', "_")));
+        figures::query_heatmap(&p, q, &top, &test.config, &cb).map_err(fig)?;
+        figs.push(p);
+    }
+    let p = dir.join("uncertainty_eopt.png");
+    figures::uncertainty_map(
+        &p,
+        &format!("{}: E-optimality, authors' t_var ({which})", scene.name()),
+        &top,
+        &test.config,
+    )
+    .map_err(fig)?;
+    figs.push(p);
+    let p = dir.join("sparsification.png");
+    figures::sparsification_plot(&p, scene.name(), &spars).map_err(fig)?;
+    figs.push(p);
+    if !sweep_points.is_empty() {
+        let p = dir.join("sparsity_sweep.png");
+        figures::sweep_plot(&p, scene.name(), &sweep_points).map_err(fig)?;
+        figs.push(p);
+    }
+
+    let held: usize = frames.iter().map(|f| f.held_points.len()).sum();
+    let integrated: usize = frames.iter().map(|f| f.points.len()).sum();
+    let notes = format!(
+        "{} frames, {:.0} points per frame ({} integrated, {} held out); PCA 384 → 64 fitted on another sequence keeps {:.1} % of the variance; {}. Unknown = held-out points whose voxel the map had not observed (counted wrong).",
+        frames.len(),
+        test.points() as f64 / test.frames.len().max(1) as f64,
+        integrated,
+        held,
+        100.0 * dec.explained_variance,
+        if source.scale_note().is_empty() {
+            format!(
+                "voxel {} m, ℓ = {} m",
+                test.config.voxel_size(),
+                test.config.kernel_length()
+            )
+        } else {
+            format!("map scale: {}", source.scale_note())
+        },
+    );
+    let mut md =
+        super::tables::results_table(&format!("Scene: {}", source.title()), &results, &notes);
+    if let Some(r) = results.iter().find(|r| r.method == Method::LatentBki(f)) {
+        md += &format!(
+            "\nmIoU above averages the classes present in the ground truth ({} of {}); averaged as the authors' evaluation does (all {} classes, an absent class counting 0), LatentBKI f32 (f = {f}) has {:.2} %.\n",
+            (0..r.confusion.classes()).filter(|&c| r.confusion.iou(c).is_some()).count(),
+            r.confusion.classes(),
+            r.confusion.classes(),
+            100.0 * r.confusion.miou_authors()
+        );
+    }
+    md += &super::tables::iou_table(&dec.classes, &results);
+    md += &format!(
+        "\nUncertainty of LatentBKI (f = {f}) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points). Sampling: {} draws, variance of the predicted class's score:\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
+        spars.points, setup.sampling_draws
+    );
+    for (name, a, m) in &spars.ause {
+        md += &format!("| {name} | {:.2} | {:.2} |\n", 100.0 * a, 100.0 * m);
+    }
+    if !sweep_points.is_empty() {
+        md += "\nSparsity sweep (LatentBKI f32): accuracy / mIoU (%) by points per frame\n\n| points/frame |";
+        let filters = &options.sweep_filters;
+        for f in filters {
+            md += &format!(" f = {f} |");
+        }
+        md += "\n|---:|";
+        md += &"---:|".repeat(filters.len());
+        md += "\n";
+        for &b in budgets {
+            let row: Vec<&SweepPoint> = sweep_points.iter().filter(|p| p.budget == b).collect();
+            if let Some(first) = row.first() {
+                md += &format!("| {:.0} |", first.points_per_frame);
+                for p in &row {
+                    md += &format!(" {:.2} / {:.2} |", 100.0 * p.accuracy, 100.0 * p.miou);
+                }
+                md += "\n";
+            }
+        }
+    }
+    let hint = source.coverage_hint(&results, f);
+    Ok(Report {
+        scene,
+        results,
+        sparsification: spars,
+        sweep: sweep_points,
+        markdown: md,
+        figures: figs,
+        hint,
+    })
+}
