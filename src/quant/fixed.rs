@@ -50,6 +50,12 @@ impl Parts {
     }
 }
 
+/// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
+#[inline(never)]
+fn lz(v: u32) -> u32 {
+    v.leading_zeros()
+}
+
 /// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
 /// 64-bit shift is long on a 32-bit MCU.)
 #[inline(never)]
@@ -57,7 +63,7 @@ fn shift(p: u32, sh: i32) -> u32 {
     if p == 0 {
         0
     } else if sh >= 0 {
-        if sh >= 30 || p.leading_zeros() < 2 + sh as u32 {
+        if sh >= 30 || lz(p) < 2 + sh as u32 {
             1 << 30
         } else {
             p << sh
@@ -78,10 +84,10 @@ fn f32_bits(v: u32, e: i32) -> u32 {
     if v == 0 {
         return 0;
     }
-    let lz = v.leading_zeros() as i32;
-    // v = mant · 2^(8 − lz) with mant in [2²³, 2²⁴).
-    let mant = (v << lz) >> 8;
-    let biased = e + (8 - lz) + 150;
+    let z = lz(v) as i32;
+    // v = mant · 2^(8 − z) with mant in [2²³, 2²⁴).
+    let mant = (v << z) >> 8;
+    let biased = e + (8 - z) + 150;
     if biased <= 0 {
         0
     } else if biased >= 255 {
@@ -92,10 +98,10 @@ fn f32_bits(v: u32, e: i32) -> u32 {
 }
 
 /// The top 16 bits of `v` > 0 and the power of two they stand for: v ≈ t · 2^e with t in [2¹⁵, 2¹⁶).
-#[inline(always)]
+#[inline]
 fn top16(v: u32) -> (u32, i32) {
-    let lz = v.leading_zeros() as i32;
-    ((v << lz) >> 16, 16 - lz)
+    let z = lz(v) as i32;
+    ((v << z) >> 16, 16 - z)
 }
 
 /// Code `i` of a section packed by [`super::pack`] (`width` ≤ 8 bits), read on its own: the loops here stay
@@ -329,7 +335,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
 
         // ---- pass 2, scatters in units of c²·2^g, g chosen so that n·127²·1.25 < 2³¹; each ends as the
         // f32 bit pattern of its value (what the minifloat codes are cut from).
-        let g = (32 - n.leading_zeros() as i32) - 16;
+        let g = (32 - lz(n) as i32) - 16;
         // n₀n₁/n = n₁ − n₁²/n, with 8 fraction bits (n₁²·2⁸ < 2²⁴), and 2³²/n₁: 32-bit divisions.
         let w = u64::from((n1 << 8) - ((n1 * n1) << 8).wrapping_add(n / 2) / n);
         let r1 = u64::from(u32::MAX / n1);
