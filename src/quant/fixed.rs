@@ -51,14 +51,40 @@ impl Parts {
 }
 
 /// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
-#[inline(never)]
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
 fn lz(v: u32) -> u32 {
     v.leading_zeros()
 }
 
 /// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
 /// 64-bit shift is long on a 32-bit MCU.)
-#[inline(never)]
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
 fn shift(p: u32, sh: i32) -> u32 {
     if p == 0 {
         0
@@ -79,7 +105,20 @@ fn shift(p: u32, sh: i32) -> u32 {
 }
 
 /// The f32 bit pattern of `v · 2^e` (v > 0), mantissa truncated; 0 if it underflows, f32::MAX if too big.
-#[inline(never)]
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
 fn f32_bits(v: u32, e: i32) -> u32 {
     if v == 0 {
         return 0;
@@ -183,7 +222,20 @@ impl Int8Fix {
 /// One dimension's merged mean and the distance between the two means (both in code steps with
 /// [`MEAN_FRAC`] fraction bits), from the old mean code `q` on scale `sigma` (steps) and the sums' Σc: with
 /// x = Σc − n₁m₀ the merged mean is m₀ + x/n and d = x/n₁ (`rn`, `rn1`: 2³²/n, 2³²/n₁).
-#[inline(never)]
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
 fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: i64, rn1: i64) -> (i32, i32) {
     let q = (q as i32) << (32 - MU_BITS) >> (32 - MU_BITS);
     let m0 = q.wrapping_mul(sigma);
@@ -197,7 +249,20 @@ fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: i64, rn1: i64) -> (i32
 /// One dimension's codes: μ = m/σ by the reciprocal `r_sigma` (2³²/σ) to 1/256 of a step, plus a dither
 /// below one step, floored (stochastic rounding); Ψ the minifloat key of `bits` less the voxel's `base`.
 /// Bytes 0 and 1 of `dither` serve μ and Ψ, as in [`QuantVoxel::reencode`].
-#[inline(never)]
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
 fn codes_of(m: i32, r_sigma: i64, bits: u32, base: i32, dither: u32) -> (u8, u8) {
     let u = ((i64::from(m).wrapping_mul(r_sigma) + (1 << 23)) >> 24) as i32;
     let q = (u + (dither & 0xFF) as i32) >> 8;
@@ -225,7 +290,20 @@ struct ScatterUnits {
 /// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `k` the
 /// old minifloat code (with its base), `d` the distance of the means (MEAN_FRAC fraction bits), `numer`
 /// the sums' n₁Σc² − (Σc)². Not inlined: one copy of the body keeps the loop small.
-#[inline(never)]
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
 fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
     let g = u.g;
     // The old scatter's minifloat: exponent k/4, mantissa 1 + (k%4)/4.
