@@ -10,6 +10,8 @@
 //!   cools down — its hot statistics merge into its codes (Chan's formula, exact) when another voxel needs
 //!   the hot entry. A voxel seen over several frames is re-encoded once per visit, not once per batch, and
 //!   the rounding error does not grow with the number of batches.
+//! - **int8 features** accumulate as exact integer sums and cool in fixed point ([`crate::quant::Int8Fix`]):
+//!   no float operation on their path, for an MCU without an FPU.
 //! - **Slots** hold the quantized statistics and a key stored as 3 × i16, wrapped around the window centre
 //!   (the window is far smaller than 2¹⁶ voxels, so the full key is recovered exactly).
 //! - **Index**: open addressing with linear probing over 2·CAP u16 entries (slot + 1, 0 = empty): O(1)
@@ -25,17 +27,16 @@
 //!
 //! The parts live in private submodules: `index` (key → slot), `slots` (the ring, CLOCK eviction, flush),
 //! `hot` (the f32 tier and cooling), `window` (wrapped keys, moving the window), `live` (which held voxels
-//! changed since the link last streamed them); this file holds the
-//! layout, configuration, adding points and reading.
+//! changed since the link last streamed them), `int8` (int8 features), `read` (statistics, posteriors,
+//! what it can answer); this file holds the layout, configuration and adding f32 points.
 
-use crate::batch::{locate, locate_key, Rejection, RejectionCounts};
+use crate::batch::{locate, Rejection, RejectionCounts};
 use crate::config::{ConfigError, MapConfig, Prior};
 use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
-use crate::obs::{code_in_range, gather, ObsLookup, ObsStats};
+use crate::obs::ObsStats;
 use crate::quant::{Dither, Int8Fix, QuantVoxel};
 use crate::sink::EvictionSink;
-use crate::stats::VoxelStats;
 use nalgebra::Isometry3;
 
 /// Hot (f32) voxels by default (`H`): ≈ 17 KiB at D = 64.
@@ -157,11 +158,11 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
 
 mod hot;
 mod index;
+mod int8;
 mod live;
+mod read;
 mod slots;
 mod window;
-
-use window::unwrap;
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
     const TABLE: usize = 2 * CAP;
@@ -401,227 +402,6 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         Ok(h)
     }
 
-    // ----- int8 features -----------------------------------------------------------------------------
-
-    /// Declare the scale of int8 features: a code c stands for the feature value y = `scale` · c. Points
-    /// with int8 features are refused (counted as [`Rejection::FeatureScale`]) until a valid scale is set,
-    /// and after an invalid one (NaN, infinite, ≤ 0, or so large that 127·√D·scale exceeds
-    /// [`crate::batch::FEATURE_LIMIT`]), which also returns an error. Voxels being observed keep what they
-    /// took with the previous scale. [`Self::configure`] clears it.
-    pub fn set_int8_scale(&mut self, scale: f32) -> Result<(), ConfigError> {
-        let scale_ok = scale > 0.0
-            && scale * f32::from(crate::obs::CODE_MAX) * libm::sqrtf(D as f32)
-                <= crate::batch::FEATURE_LIMIT;
-        // Sums taken with the previous scale become f32 statistics first.
-        let old = self.int8_scale;
-        for e in self.hot.iter_mut().take(self.hot_len) {
-            e.acc.make_float(old);
-        }
-        self.int8_scale = if scale_ok { scale } else { 0.0 };
-        self.int8_fix = if scale_ok {
-            Int8Fix::new(scale)
-        } else {
-            Int8Fix::NONE
-        };
-        if scale_ok {
-            Ok(())
-        } else {
-            Err(ConfigError::Int8Scale)
-        }
-    }
-
-    /// The int8 feature scale (0 when none is set).
-    pub fn int8_scale(&self) -> f32 {
-        self.int8_scale
-    }
-
-    /// Add one map-frame point with an int8 feature (y = [`Self::int8_scale`] · code): `Ok` means its voxel
-    /// took it. The voxel keeps exact integer sums of the codes while it is observed (two integer additions
-    /// and a multiply per dimension, no float); refusals are counted as for [`Self::add_point`], plus
-    /// [`Rejection::CodeOutOfRange`] (a code of −128) and [`Rejection::FeatureScale`] (no valid scale).
-    pub fn add_point_i8<S: EvictionSink<D>>(
-        &mut self,
-        position: [f32; 3],
-        codes: &[i8; D],
-        sink: &mut S,
-    ) -> Result<(), Rejection> {
-        self.counted(|m| m.take_point_i8(position, codes, sink))
-    }
-
-    /// [`Self::add_points`] for int8 features.
-    pub fn add_points_i8<S: EvictionSink<D>>(
-        &mut self,
-        pose: &Isometry3<f32>,
-        points: &[[f32; 3]],
-        codes: &[[i8; D]],
-        sink: &mut S,
-    ) -> usize {
-        self.add_paired(pose, points, codes, |m, p, c| m.add_point_i8(p, c, sink))
-    }
-
-    /// Add one point with an int8 feature whose voxel the caller found (e.g. an integer sensor point
-    /// through [`crate::fixed_pose::FixedPose`]): as [`Self::add_point_i8`], without any float operation.
-    pub fn add_point_i8_in<S: EvictionSink<D>>(
-        &mut self,
-        key: VoxelKey,
-        codes: &[i8; D],
-        sink: &mut S,
-    ) -> Result<(), Rejection> {
-        self.counted(|m| m.take_key_i8(key, codes, sink))
-    }
-
-    /// Count a point refused before it reached the map (e.g. a position no key can be found for).
-    pub fn refuse(&mut self, r: Rejection) {
-        self.rejections.count(r);
-    }
-
-    /// Run one point's intake: count it as taken or refused.
-    #[inline]
-    fn counted(
-        &mut self,
-        take: impl FnOnce(&mut Self) -> Result<(), Rejection>,
-    ) -> Result<(), Rejection> {
-        match take(self) {
-            Ok(()) => {
-                self.counters.points = self.counters.points.wrapping_add(1);
-                Ok(())
-            }
-            Err(r) => {
-                self.rejections.count(r);
-                Err(r)
-            }
-        }
-    }
-
-    fn take_point_i8<S: EvictionSink<D>>(
-        &mut self,
-        position: [f32; 3],
-        codes: &[i8; D],
-        sink: &mut S,
-    ) -> Result<(), Rejection> {
-        let key = locate_key(&self.lut, position)?;
-        self.take_key_i8(key, codes, sink)
-    }
-
-    fn take_key_i8<S: EvictionSink<D>>(
-        &mut self,
-        key: VoxelKey,
-        codes: &[i8; D],
-        sink: &mut S,
-    ) -> Result<(), Rejection> {
-        // A set scale is > 0 and anything else is stored as +0.0: a bit test, no float compare (which
-        // is a library call on an MCU without an FPU).
-        if self.int8_scale.to_bits() == 0 {
-            return Err(Rejection::FeatureScale);
-        }
-        if !code_in_range(codes) {
-            return Err(Rejection::CodeOutOfRange);
-        }
-        let h = self.hot_entry(key, sink)?;
-        if self.hot_is_full(h) {
-            self.restart_hot(h);
-        }
-        let scale = self.int8_scale;
-        let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
-        e.acc.add_codes(codes, scale);
-        e.referenced = true;
-        Ok(())
-    }
-
-    // ----- reading -----------------------------------------------------------------------------------
-
-    /// The observation statistics of a voxel, if held.
-    pub fn get(&self, key: VoxelKey) -> Option<ObsStats<D>> {
-        if !Self::wrap_safe(key, self.centre) {
-            return None; // its wrapped form could alias a resident key
-        }
-        let (_, s) = self.find(key)?;
-        self.slots.get(s).map(|slot| self.decode_slot(slot))
-    }
-
-    fn decode_slot(&self, slot: &Slot<D, P>) -> ObsStats<D> {
-        let mut obs = slot.codes.decode();
-        if let Some(hot) = usize::from(slot.hot)
-            .checked_sub(1)
-            .and_then(|h| self.hot.get(h))
-        {
-            hot.acc.merge_into(&mut obs, self.int8_scale);
-        }
-        obs
-    }
-
-    /// Every held voxel, decoded.
-    pub fn iter(&self) -> impl Iterator<Item = LiveVoxel<D>> + '_ {
-        self.slots
-            .iter()
-            .filter(|s| s.flags & OCCUPIED != 0)
-            .map(|s| LiveVoxel {
-                key: unwrap(s.key, self.centre),
-                obs: self.decode_slot(s),
-                residency: s.residency,
-            })
-    }
-
-    /// The voxels being observed now (the hot ones), decoded: what a link with spare bytes streams as live
-    /// updates — the base station replaces a live update by the next one of the same residency.
-    pub fn hot_voxels(&self) -> impl Iterator<Item = LiveVoxel<D>> + '_ {
-        self.hot
-            .iter()
-            .take(self.hot_len)
-            .filter_map(|h| self.slots.get(usize::from(h.slot)))
-            .map(|s| LiveVoxel {
-                key: unwrap(s.key, self.centre),
-                obs: self.decode_slot(s),
-                residency: s.residency,
-            })
-    }
-
-    /// The posterior of any voxel, gathered from the held voxels in the kernel's reach (the prior if none).
-    pub fn posterior(&self, key: VoxelKey) -> VoxelStats<D> {
-        // The table is voxel-offset (checked in `configure`); an unconfigured map gathers nothing.
-        gather(&self.lut, self, key)
-            .unwrap_or(ObsStats::EMPTY)
-            .posterior(&self.config.prior())
-    }
-
-    /// How many voxels the map can answer with more than the prior: those within the kernel's reach of a
-    /// held voxel. Counted without memory: a voxel in reach is counted once, by the first held voxel of its
-    /// neighbourhood in the table's order (O(len · f⁶) lookups — a report, not for the hot path).
-    pub fn answerable(&self) -> usize {
-        let offsets = self.lut.offsets();
-        let mut n = 0;
-        for slot in self.slots.iter().filter(|s| s.flags & OCCUPIED != 0) {
-            let own = unwrap(slot.key, self.centre);
-            for o in offsets {
-                let target = own.offset(*o);
-                // The first held voxel around `target`, offsets in table order (the set is symmetric).
-                let first = offsets
-                    .iter()
-                    .map(|p| target.offset(*p))
-                    .find(|k| self.find(*k).is_some());
-                if first == Some(own) {
-                    n += 1;
-                }
-            }
-        }
-        n
-    }
-
-    /// Lookup cost: (mean, longest) probe run over the held keys, in table entries. At the index's ≤ 50 %
-    /// load factor linear probing averages under 2 probes.
-    pub fn probe_stats(&self) -> (f32, usize) {
-        let (mut sum, mut max, mut n) = (0usize, 0usize, 0usize);
-        for s in self.slots.iter().filter(|s| s.flags & OCCUPIED != 0) {
-            let k = unwrap(s.key, self.centre);
-            let (pos, _) = self.find(k).unwrap_or((Self::home(k), 0));
-            let run = (pos + Self::TABLE - Self::home(k)) % Self::TABLE + 1;
-            sum += run;
-            max = max.max(run);
-            n += 1;
-        }
-        (if n > 0 { sum as f32 / n as f32 } else { 0.0 }, max)
-    }
-
     /// Bytes one voxel costs: its slot plus its share of the index.
     pub const BYTES_PER_VOXEL: usize =
         core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
@@ -636,12 +416,4 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// [`Self::FIXED_BYTES`]; equals `size_of::<Self>()` (tested).
     pub const RAM_BYTES: usize =
         CAP * Self::BYTES_PER_VOXEL + H * Self::BYTES_PER_HOT_VOXEL + Self::FIXED_BYTES;
-}
-
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> ObsLookup<D>
-    for LocalMap<D, CAP, P, H>
-{
-    fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
-        self.get(key)
-    }
 }

@@ -5,20 +5,19 @@
 //! merged (Chan's formula) into the statistics its [`QuantVoxel`] codes stand for and re-encoded. In f32
 //! that is ≈ 16 float operations per dimension: ≈ 70,000 instructions per cooling on riscv32imac and
 //! ≈ 130,000 on thumbv6m, in library calls. Here the same merge runs in integers, in units of the int8
-//! scale s (a code step): means as i32 with [`MEAN_FRAC`] fraction bits (|m| ≤ 160 steps), scatters as u64
-//! on a per-voxel power-of-two unit; only the final codes go through the f32 bit layout (built from
-//! integers), so they mean exactly what [`QuantVoxel::decode`] reads. The codes equal the f32 path's to
-//! the rounding of the last code step (tests: within 1.3 mean steps and 25 % of scatter on 400 merges;
-//! 600 coolings of one voxel walk no farther than the f32 path's).
+//! scale s (a code step): means as i32 with [`MEAN_FRAC`] fraction bits (|m| ≤ 160 steps), scatters on a
+//! per-voxel power-of-two unit, products of 16-bit pieces where 16 bits are enough; only the final codes go
+//! through the f32 bit layout (built from integers), so they mean exactly what [`QuantVoxel::decode`]
+//! reads. The codes equal the f32 path's to the rounding of the last code step (tests: within 1.3 mean
+//! steps and 25 % of scatter on 400 merges; 600 coolings of one voxel walk no farther than the f32 path's).
 //!
-//! **Not yet wired into the local map**, because every target must cool the same way (the QEMU boards'
-//! UART streams are compared with one host twin) and, measured with `boards/measure.sh` with it wired in
-//! (`cool` calling it for int8 sums): riscv32imac i8 3,413 → 1,838 instructions per point (goal 2,000
-//! met), thumbv6m 5,136 → 4,145 (its divisions and 64-bit multiplies are library calls there), but the
-//! Cortex-M4F's i8 row 1,004 → 1,390 (its FPU does the f32 cooling cheaper) and flash +5.7 KB on every
-//! target (riscv32imac 62,758 → 71,122 B, over the 64 KiB goal). Before it is wired: 32-bit scatter
-//! terms on a per-voxel block exponent (no u64 products or shifts), reciprocals instead of two divisions
-//! per dimension, loops kept rolled.
+//! Every target cools int8 sums this way (the QEMU boards' UART streams are compared with one host twin, so
+//! all must compute the same codes). Measured with `boards/measure.sh` (depth frames, f = 3, i8 features,
+//! instructions per point): riscv32imac 3,393 → 1,854, thumbv6m 5,111 → 2,711, but the Cortex-M4F
+//! 1,004 → 1,309 — its FPU runs the f32 cooling in fewer instructions than these integer passes (≈ 150
+//! per dimension). The per-dimension helpers are inlined where there is an FPU and kept out of line without
+//! one (flash: riscv32imac stays under 64 KiB). thumbv6m's remaining cost is largely its library calls for
+//! 64-bit products and 32-bit divisions (`__aeabi_lmul`, `__aeabi_uidiv`).
 
 use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
 use crate::obs::{scatter_numerator, CodeSums};
