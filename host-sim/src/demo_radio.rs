@@ -18,14 +18,21 @@ use latentbki::{key::VoxelKey, sink::Evicted, stats::VoxelStats, Setup};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// The demo's summary codec: 3-bit means for a one-point voxel, one more bit per doubling of its points
-/// (up to 3 more), 2 scatter blocks. (The tile's LiDAR voxels hold 3.5 points on average: most bytes go to
-/// voxels of one or two points, while the voxels of many points, which move posteriors most, get 4–6 bits.
-/// Ψ in 2 blocks instead of 8 saves 3 B per summary of ≥ 2 points; μ and the argmax do not depend on it.)
+mod study;
+
+/// The demo's summary codec: the 8 leading (PCA) mean components as a band of their own with 3 more bits,
+/// the other 56 with 3 bits for a one-point voxel, one more bit per doubling of its points (up to 3 more),
+/// 2 scatter blocks. (The classes live in the leading components: they take 3 B more per summary and
+/// bring the base station's argmax agreement with the robot from 99.72 % to 99.95 % on the demo's map,
+/// where one more bit for all 64 components costs 8 B for 99.88 % — `demo --codec-study`. The tile's
+/// LiDAR voxels hold 3.5 points on average: most bytes go to voxels of one or two points. Ψ in 2 blocks
+/// instead of 8 saves 3 B per summary of ≥ 2 points; μ and the argmax do not depend on it.)
 pub const CODEC: latentbki::wire::SummaryCodec = latentbki::wire::SummaryCodec {
     mean_bits: 3,
     psi_blocks: 2,
     mean_bits_growth: 3,
+    lead: 8,
+    lead_bits: 3,
 };
 
 /// Bytes the robot may send per tick.
@@ -66,6 +73,10 @@ pub struct LinkArgs {
     /// Seed of the link's faults.
     #[arg(long, default_value_t = 7)]
     pub link_seed: u64,
+    /// After the run, measure other summary codecs on the robot's map (where the base station's error
+    /// comes from; `demo_radio::study`).
+    #[arg(long)]
+    pub codec_study: bool,
 }
 
 impl LinkArgs {
@@ -110,6 +121,13 @@ pub struct DemoRadio {
     config: SessionConfig,
     args: LinkArgs,
     robot_map: Option<HashMap<VoxelKey, VoxelStats<D>>>,
+    /// The robot's observed voxels (for `--codec-study`).
+    robot_obs: Option<(
+        latentbki::MapConfig,
+        Vec<(VoxelKey, latentbki::obs::ObsStats<D>)>,
+    )>,
+    /// At the end, `--codec-study`'s table.
+    study: Option<String>,
     /// Bytes of live-update frames.
     live_bytes: u64,
     /// The robot's link counters at the end.
@@ -123,6 +141,8 @@ pub struct DemoRadio {
     reference: Option<(f64, f64, usize)>,
     /// The same for the robot's own map (what no link can improve on).
     robot_reference: Option<(f64, f64, usize)>,
+    /// The base station against the robot's own map (what the wire alone costs).
+    wire_error: Option<(f64, f64, usize)>,
     /// The live view / recording of the base station, if asked for.
     viewer: Option<crate::base_station::view::Viewer<D>>,
 }
@@ -138,6 +158,8 @@ impl DemoRadio {
             base,
             config,
             robot_map: None,
+            robot_obs: None,
+            study: None,
             args: args.clone(),
             live_bytes: 0,
             robot: None,
@@ -147,6 +169,7 @@ impl DemoRadio {
             decoder: None,
             reference: None,
             robot_reference: None,
+            wire_error: None,
             viewer: None,
         })))
     }
@@ -235,6 +258,10 @@ impl DemoRadio {
         }
         self.agreement = Some((both, agree as f64 / both.max(1) as f64));
         self.robot_map = Some(m);
+        if self.args.codec_study {
+            let obs = robot.observed_voxels().map(|(k, o)| (k, *o)).collect();
+            self.robot_obs = Some((*robot.config(), obs));
+        }
     }
 
     /// Compare the base station's posteriors with the f32 reference map of all points (sorted `(key,
@@ -249,6 +276,20 @@ impl DemoRadio {
         let ours: HashMap<VoxelKey, VoxelStats<D>> = base.posteriors().into_iter().collect();
         self.reference = Some(against(&ours, reference, decoder));
         self.robot_reference = Some(against(robot, reference, decoder));
+        let mut robot_sorted: Vec<(VoxelKey, VoxelStats<D>)> =
+            robot.iter().map(|(k, v)| (*k, *v)).collect();
+        robot_sorted.sort_unstable_by_key(|(k, _)| *k);
+        self.wire_error = Some(against(&ours, &robot_sorted, decoder));
+        if let Some((config, obs)) = &self.robot_obs {
+            let mut t = study::table(*config, obs, &robot_sorted, reference, decoder);
+            t += &format!(
+                "  robot map vs reference: {}\n  base station vs reference: {}\n  base station vs robot map: {}\n",
+                study::profile(robot, reference),
+                study::profile(&ours, reference),
+                study::profile(&ours, &robot_sorted),
+            );
+            self.study = Some(t);
+        }
     }
 
     /// The link's account in stable lines: points lost, bytes per integrated point by what they carried,
@@ -310,11 +351,16 @@ impl DemoRadio {
                 100.0 * a
             );
         }
+        if let Some((_, rms, _)) = self.wire_error {
+            out += &format!(
+                "base station vs robot map (the wire's own error): RMS ‖Δμ‖/‖μ‖ {rms:.4}\n"
+            );
+        }
         out += &format!(
             "link: {} ticks of {TICK_MS} ms; up: {} frames written ({} re-sent), {} dropped, {} truncated, {} delayed, \
              {} lost to outages; the base station applied {} frames and {} live updates, refused {} damaged runs of \
-             bytes and {} repeated frames; down: {} acknowledgements, {} lost to outages; the robot refused {} \
-             damaged or foreign ones.",
+             bytes and {} repeated frames ({} copies made by the link); down: {} acknowledgements, {} lost to \
+             outages; the robot refused {} damaged or foreign ones.",
             self.ticks,
             up.frames,
             robot.stats.resent,
@@ -326,10 +372,15 @@ impl DemoRadio {
             s.updated,
             s.decoder.refused(),
             s.rejected.duplicate_frames,
+            up.duplicated,
             down.frames,
             down.outage_dropped,
             robot.stats.bad_acks,
         );
+        if let Some(t) = &self.study {
+            out += "\n";
+            out += t;
+        }
         out
     }
 }

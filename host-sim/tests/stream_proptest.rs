@@ -33,13 +33,16 @@ fn key() -> impl Strategy<Value = VoxelKey> {
 }
 
 fn codec() -> impl Strategy<Value = SummaryCodec> {
-    (2u8..=8, 1u8..=16, 0u8..=4).prop_map(|(mean_bits, psi_blocks, mean_bits_growth)| {
-        SummaryCodec {
+    // D = 16: a lead band of 0..=15 components (0 = none), 0..=6 more bits for it.
+    (2u8..=8, 1u8..=16, 0u8..=4, 0u8..16, 0u8..=6).prop_map(
+        |(mean_bits, psi_blocks, mean_bits_growth, lead, lead_bits)| SummaryCodec {
             mean_bits,
             psi_blocks,
             mean_bits_growth,
-        }
-    })
+            lead,
+            lead_bits,
+        },
+    )
 }
 
 proptest! {
@@ -48,11 +51,11 @@ proptest! {
         let mut buf = vec![0u8; 64 * items.len()];
         let mut at = 0;
         let mut base = DeltaBase::default();
-        let mut scales = Vec::new();
+        let mut sent = Vec::new();
         for (k, r, f, s) in &items {
             let mut codes = [0u8; 64];
             let n = encode_codes(codec, s, &mut codes).unwrap();
-            scales.push(codes[0]);
+            sent.push(codes[..n].to_vec());
             at += encode_summary(&mut base, *k, *r, *f, s.count as u32, &codes[..n], &mut buf[at..]).unwrap();
         }
         let mut base = DeltaBase::default();
@@ -62,7 +65,7 @@ proptest! {
             prop_assert_eq!((got.key, got.residency, got.is_final), (*k, *r, *f));
             prop_assert_eq!(got.obs.count.to_bits(), s.count.to_bits());
             let err = got.obs.mean.iter().zip(&s.mean).map(|(a, b)| (a - b) * (a - b)).sum::<f32>().sqrt();
-            prop_assert!(err <= mean_error_bound(codec, D, scales[i], s.count as u32) * 1.001 + 1e-6, "mean error {}", err);
+            prop_assert!(err <= mean_error_bound(codec, D, &sent[i], s.count as u32) * 1.001 + 1e-6, "mean error {}", err);
             let max = s.scatter.iter().fold(0.0f32, |a, &b| a.max(b));
             let got_max = got.obs.scatter.iter().fold(0.0f32, |a, &b| a.max(b));
             prop_assert!(got_max <= max * 1.0906 + 1e-9);

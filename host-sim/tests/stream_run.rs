@@ -89,6 +89,8 @@ fn whole_run_with_exact_codes_equals_the_reference_map() {
         mean_bits: 8,
         psi_blocks: 8,
         mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
     };
     let r = run(codec, &[path(0.5, 11.0, 3.0, 0.0)], 64 * 1024);
     let s = r.base.stats();
@@ -159,6 +161,8 @@ fn two_robots_merge_into_the_all_points_map() {
         mean_bits: 8,
         psi_blocks: 8,
         mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
     };
     let r = run(
         codec,
@@ -211,6 +215,8 @@ fn codec_trade_off_table() {
             mean_bits: bits,
             psi_blocks: 8,
             mean_bits_growth: 0,
+            lead: 0,
+            lead_bits: 0,
         };
         // What a base station gathers from the summaries at this codec.
         let mut received =

@@ -275,10 +275,12 @@ mod tests {
             assert_eq!(postcard::from_bytes::<Ack>(&body[..m - 4]).unwrap(), a);
         }
         // Overlong varints and trailing bytes are refused.
-        assert_eq!(Ack::parse(&[3, 0x81, 0x80, 0x80, 0x00, 0, 0, 1]), None);
-        assert_eq!(Ack::parse(&[3, 3, 9, 5, 1, 0]), None);
+        let v = PROTOCOL_VERSION;
+        assert_eq!(Ack::parse(&[v, 0x81, 0x80, 0x80, 0x00, 0, 0, 1]), None);
+        assert_eq!(Ack::parse(&[v, 3, 9, 5, 1, 0]), None);
+        assert_eq!(Ack::parse(&[v - 1, 3, 9, 5, 1]), None, "another version");
         assert_eq!(
-            Ack::parse(&[3, 3, 9, 5, 1]),
+            Ack::parse(&[v, 3, 9, 5, 1]),
             Some(Ack {
                 highest: 5,
                 received: 1,

@@ -200,6 +200,8 @@ const NO_SESSION: SessionConfig = SessionConfig {
         mean_bits: 0,
         psi_blocks: 0,
         mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
     },
     feature_space: 0,
     int8_scale: 0.0,
@@ -273,7 +275,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             return Err(WireError::BufferFull);
         }
         let entry_len = ENTRY_HEAD + config.codec.code_len(D);
-        let capacity = (QB - resend) / entry_len;
+        let capacity = (QB - resend).checked_div(entry_len).unwrap_or(0);
         let one = wire_len(VOXEL_FRAME_OVERHEAD + config.codec.max_summary_len(D));
         if capacity == 0 || one > N || wire_len(64) > N {
             return Err(WireError::BufferFull);

@@ -146,6 +146,8 @@ fn a_refused_setup_sends_nothing() {
             mean_bits: 1,
             psi_blocks: 8,
             mean_bits_growth: 0,
+            lead: 0,
+            lead_bits: 0,
         },
         ..setup()
     };

@@ -12,26 +12,28 @@
 //!
 //! Everything else (frame header, session configuration, link statistics) is plain postcard with serde.
 //! The format is written down below; `tests` check the code against it. Submodules: [`messages`] (frame
-//! header, session configuration, link statistics, the message enum: postcard) and [`summary`] (the voxel
-//! summary codec).
+//! header, session configuration, link statistics, the message enum: postcard), [`summary`] (a voxel
+//! summary's bytes) and [`codec`] (its quantized codes).
 //!
 #![doc = include_str!("../wire_spec.md")]
 
+pub mod codec;
 pub mod messages;
 pub mod summary;
 
+pub use codec::{
+    decode_codes, encode_codes, mean_error_bound, wire_count, SummaryCodec, MAX_COUNT,
+};
 pub use messages::{
     encode_body, feature_space_id, parse_body, FrameHeader, LinkStats, Message, SessionConfig,
     VoxelBatch, NO_FEATURE_SPACE,
 };
 pub use summary::{
-    decode_codes, decode_summary, encode_codes, encode_summary, encode_summary_head,
-    mean_error_bound, wire_count, Ceiling, DeltaBase, Summary, SummaryCodec, SummaryIter,
-    MAX_COUNT,
+    decode_summary, encode_summary, encode_summary_head, Ceiling, DeltaBase, Summary, SummaryIter,
 };
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u8 = 3;
+pub const PROTOCOL_VERSION: u8 = 4;
 
 /// CRC-32 used for frames, configuration ids and feature-space ids (ISO-HDLC: zlib, Ethernet, PNG).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);

@@ -1,97 +1,10 @@
-//! The voxel summary codec: what a voxel observed (n, m, S) in ≈ 40 bytes. n exact (a varint), m rotated
-//! by a Walsh–Hadamard transform and quantized against a per-voxel scale, S as its largest entry and
-//! block means (they merge exactly), keys and residencies delta-coded within a frame.
+//! A voxel summary on the wire: key and residency deltas within a frame, the final flag, the exact point
+//! count, then the quantized codes of [`super::codec`].
 
+use super::codec::{decode_codes, SummaryCodec, MAX_COUNT};
 use super::{VoxelBatch, WireError};
-use crate::f32math;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
-use core::num::NonZeroUsize;
-use serde::{Deserialize, Serialize};
-
-/// How voxel summaries are quantized. Part of the session configuration.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct SummaryCodec {
-    /// Bits per (rotated) mean component of a one-point summary, 2..=8.
-    pub mean_bits: u8,
-    /// Number of blocks the scatter's block means are sent for, 1..=min(D, 64).
-    pub psi_blocks: u8,
-    /// Most bits added to `mean_bits` for summaries of more points: one per doubling of the point count
-    /// n, up to this many (and 8 in all). A receiver gathers means weighted by n, so a voxel of many points
-    /// moves a posterior more than one of few: its mean gets the finer codes. 0 = every summary `mean_bits`.
-    pub mean_bits_growth: u8,
-}
-
-impl Default for SummaryCodec {
-    fn default() -> Self {
-        Self::DEFAULT
-    }
-}
-
-impl SummaryCodec {
-    /// 3-bit means, 8 scatter blocks: at D = 64, 30 code bytes + 1–3 bytes of count + 4–6 bytes of key and
-    /// residency deltas (see the README for the measured argmax agreement).
-    pub const DEFAULT: Self = Self {
-        mean_bits: 3,
-        psi_blocks: 8,
-        mean_bits_growth: 0,
-    };
-
-    /// Whether this codec can encode D-dimensional voxels.
-    pub fn validate(self, dim: usize) -> Result<(), WireError> {
-        let blocks = usize::from(self.psi_blocks);
-        if dim == 0 || dim > u16::MAX as usize {
-            return Err(WireError::BadConfig);
-        }
-        if !(2..=8).contains(&self.mean_bits) || blocks == 0 || blocks > dim.min(64) {
-            return Err(WireError::BadConfig);
-        }
-        if self.mean_bits_growth > 6 {
-            return Err(WireError::BadConfig);
-        }
-        Ok(())
-    }
-
-    /// Bits per mean component of a summary of `count` points: `mean_bits` + min(⌊log₂ n⌋,
-    /// `mean_bits_growth`), at most 8.
-    pub const fn bits_for(self, count: u32) -> u32 {
-        let grow = if count > 1 { count.ilog2() } else { 0 };
-        let grow = if grow < self.mean_bits_growth as u32 {
-            grow
-        } else {
-            self.mean_bits_growth as u32
-        };
-        let bits = self.mean_bits as u32 + grow;
-        if bits < 8 {
-            bits
-        } else {
-            8
-        }
-    }
-
-    /// Bytes of the quantized part (mean scale, mean codes, and — for n ≥ 2 — the scatter) of a
-    /// D-dimensional summary of `count` points. A single point has no scatter, so none is sent.
-    pub const fn code_len_for(self, dim: usize, count: u32) -> usize {
-        let mean = 1 + (dim * self.bits_for(count) as usize).div_ceil(8);
-        if count < 2 {
-            mean
-        } else {
-            mean + 1 + (self.psi_blocks as usize).div_ceil(2)
-        }
-    }
-
-    /// The largest quantized part of a D-dimensional summary (any point count).
-    pub const fn code_len(self, dim: usize) -> usize {
-        self.code_len_for(dim, MAX_COUNT)
-    }
-
-    /// Largest wire size of one summary (5-byte key deltas and residency field, 4-byte count).
-    pub const fn max_summary_len(self, dim: usize) -> usize {
-        3 * 5 + 5 + 4 + self.code_len(dim)
-    }
-}
-
 /// A voxel as the base station sees it after decoding.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Summary<const D: usize> {
@@ -174,266 +87,8 @@ pub(super) const fn unzigzag(v: u32) -> i32 {
     ((v >> 1) as i32) ^ -((v & 1) as i32)
 }
 
-/// One stage of the Walsh–Hadamard transform in constant geometry: pairs (2j, 2j + 1) of `from` become
-/// their sum at j and their difference at j + n/2 of `to` (both of length n). log₂ n stages are the
-/// transform in Sylvester order, each output the same tree of sums and differences as the in-place
-/// butterflies (so the same bits), but every stage is one short loop instead of log₂ n nested ones.
-#[inline(never)]
-fn hadamard_stage(from: &[f32], to: &mut [f32]) {
-    let (from, to) = core::hint::black_box((from, to));
-    let (sums, diffs) = to.split_at_mut(to.len() / 2);
-    for ((pair, s), d) in from.chunks_exact(2).zip(sums).zip(diffs) {
-        if let [x, y] = *pair {
-            *s = x + y;
-            *d = x - y;
-        }
-    }
-}
-
-/// Orthonormal Walsh–Hadamard transform (its own inverse) when D is a power of two; identity otherwise.
-/// Returns the largest |entry| of the result (NaN entries ignored; 0 for none).
-pub(super) fn hadamard<const D: usize>(v: &mut [f32; D]) -> f32 {
-    if D < 2 || !D.is_power_of_two() {
-        return scale_all(v, 1.0);
-    }
-    let mut tmp = [0.0f32; D];
-    let stages = D.trailing_zeros();
-    for _ in 0..stages / 2 {
-        hadamard_stage(v, &mut tmp);
-        hadamard_stage(&tmp, v);
-    }
-    if stages % 2 == 1 {
-        hadamard_stage(v, &mut tmp);
-        *v = tmp;
-    }
-    scale_all(v, 1.0 / libm::sqrtf(D as f32))
-}
-
-// The summary codec runs once per voxel sent, not per point: its loops over D stay loops instead of being
-// unrolled D times into flash (≈ 6 KB at D = 64). They take slices, are not inlined, and hide the length
-// (a constant everywhere, which the optimizer would propagate) behind `black_box`; only code size and a
-// few instructions per voxel depend on that, never a result. Maxima are comparisons, not `f32::max`,
-// which thumbv7em lowers to a call to `fmaxf` per element.
-
-/// `v *= k`, element-wise; returns the largest |v| after it (NaN entries ignored; 0 for none).
-#[inline(never)]
-fn scale_all(v: &mut [f32], k: f32) -> f32 {
-    let v = core::hint::black_box(v);
-    let mut peak = 0.0f32;
-    for x in v {
-        *x *= k;
-        let a = libm::fabsf(*x);
-        if a > peak {
-            peak = a;
-        }
-    }
-    peak
-}
-
-/// The largest v, at least 0 (NaN entries ignored), as `fold(0, max)`.
-#[inline(never)]
-fn max_or_zero(values: &[f32]) -> f32 {
-    core::hint::black_box(values)
-        .iter()
-        .fold(0.0f32, |a, &v| if v > a { v } else { a })
-}
-
-/// log₂ steps per code of the μ scale and of Ψ's largest entry.
-const SCALE_STEPS_PER_OCTAVE: u32 = 8;
-/// Code 0 means "zero"; code c ≥ 1 means 2^((c − SCALE_OFFSET) / 8).
-const SCALE_OFFSET: i32 = 128;
-const PSI_OFFSET: i32 = 96;
-/// Ψ's block means relative to its maximum: 2^(−c/2), c = 0..=15.
-const BLOCK_STEPS_PER_OCTAVE: u32 = 2;
-
-// Powers and logarithms come from `f32math` (f32 only; libm's `log2f`/`exp2f` evaluate in f64, soft-float
-// on the device): codes are exact with respect to the decoder's values, `log_value(log_code_up(x)) ≥ x`.
-
-/// Smallest code whose value is ≥ x (x > 0), in 1..=255.
-fn log_code_up(x: f32, offset: i32) -> u8 {
-    let c = f32math::log2_steps_up(x, SCALE_STEPS_PER_OCTAVE).saturating_add(offset);
-    c.clamp(1, 255) as u8
-}
-
-fn log_value(code: u8, offset: i32) -> f32 {
-    if code == 0 {
-        0.0
-    } else {
-        f32math::pow2_steps(i32::from(code) - offset, SCALE_STEPS_PER_OCTAVE)
-    }
-}
-
-/// The nearest whole number of `steps`-per-octave steps in log₂ `ratio` (ratio ≥ 1), clamped to 0..=top.
-fn ratio_steps(log_ratio: f32, steps: u32, top: u8) -> u8 {
-    libm::roundf(log_ratio * steps as f32).clamp(0.0, f32::from(top)) as u8
-}
-
-pub(super) fn block_range(dim: usize, blocks: NonZeroUsize, b: usize) -> core::ops::Range<usize> {
-    (b * dim / blocks)..((b + 1) * dim / blocks)
-}
-
-/// Largest point count a summary carries: f32 counts exactly up to 2²⁴.
-pub const MAX_COUNT: u32 = 1 << 24;
-
-/// The count as the wire carries it, if it is a whole number in 1..=[`MAX_COUNT`].
-pub fn wire_count(count: f32) -> Option<u32> {
-    let n = count as u32; // saturating; NaN → 0
-    ((1..=MAX_COUNT).contains(&n) && n as f32 == count).then_some(n)
-}
-
-/// Write the quantized part (mean scale, mean codes, scatter) of observation statistics into
-/// `out[..codec.code_len(D)]`.
-pub fn encode_codes<const D: usize>(
-    codec: SummaryCodec,
-    stats: &ObsStats<D>,
-    out: &mut [u8],
-) -> Result<usize, WireError> {
-    codec.validate(D)?;
-    let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
-    let count = wire_count(stats.count).unwrap_or(1);
-    let len = codec.code_len_for(D, count);
-    let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
-    out.fill(0);
-    let bits = codec.bits_for(count);
-    let (scale_byte, rest) = out.split_first_mut().ok_or(WireError::BufferFull)?;
-    let (mean_bytes, psi_bytes) = rest
-        .split_at_mut_checked((D * bits as usize).div_ceil(8))
-        .ok_or(WireError::BufferFull)?;
-    // A single point has no scatter: nothing is sent for it.
-    let mut no_scatter = [0u8; 1];
-    let (max_byte, block_bytes) = match psi_bytes {
-        [max_byte, block_bytes @ ..] => (max_byte, block_bytes),
-        [] => (&mut no_scatter[0], &mut [][..]),
-    };
-    // μ: rotate, scale, mid-rise uniform codes, packed LSB first.
-    let mut t = stats.mean;
-    let peak = hadamard(&mut t);
-    let levels = 1u32 << bits;
-    let scale_code = if peak > 0.0 && peak.is_finite() {
-        log_code_up(peak, SCALE_OFFSET)
-    } else {
-        0
-    };
-    *scale_byte = scale_code;
-    let scale = log_value(scale_code, SCALE_OFFSET);
-    if scale > 0.0 {
-        let half = (levels / 2) as f32;
-        let top = levels - 1;
-        // Bits not yet stored (LSB first) and how many.
-        let (mut pending, mut n) = (0u32, 0u32);
-        let mut bytes = mean_bytes.iter_mut();
-        for &v in &t {
-            // The float-to-int cast truncates and saturates (NaN → 0), so here it is floor clamped at 0:
-            // a component a rounding step below −scale still gets code 0.
-            let q = (((v / scale + 1.0) * half) as u32).min(top);
-            pending |= q << n;
-            n += bits;
-            if n >= 8 {
-                if let Some(b) = bytes.next() {
-                    *b = pending as u8;
-                }
-                pending >>= 8;
-                n -= 8;
-            }
-        }
-        if let Some(b) = bytes.next() {
-            *b = pending as u8;
-        }
-    }
-    // S: largest entry (rounded up) and block means relative to it.
-    let psi_max = max_or_zero(&stats.scatter);
-    if psi_max > 0.0 && psi_max.is_finite() {
-        let max_code = log_code_up(psi_max, PSI_OFFSET);
-        *max_byte = max_code;
-        let sent_max = log_value(max_code, PSI_OFFSET);
-        let log_sent_max = f32math::log2(sent_max);
-        for b in 0..blocks.get() {
-            let r = block_range(D, blocks, b);
-            let n = r.len().max(1) as f32;
-            let block = stats.scatter.get(r).unwrap_or_default();
-            let mean = block
-                .iter()
-                .map(|&p| if p > 0.0 { p } else { 0.0 })
-                .sum::<f32>()
-                / n;
-            let c = if mean > 0.0 {
-                ratio_steps(
-                    log_sent_max - f32math::log2(mean),
-                    BLOCK_STEPS_PER_OCTAVE,
-                    15,
-                )
-            } else {
-                15
-            };
-            if let Some(byte) = block_bytes.get_mut(b / 2) {
-                *byte |= c << (4 * (b % 2));
-            }
-        }
-    }
-    Ok(len)
-}
-
-/// Decode the quantized part written by [`encode_codes`] into statistics of `count` points.
-pub fn decode_codes<const D: usize>(
-    codec: SummaryCodec,
-    count: f32,
-    bytes: &[u8],
-) -> Result<ObsStats<D>, WireError> {
-    codec.validate(D)?;
-    let n = wire_count(count).ok_or(WireError::BadCount)?;
-    let bytes = bytes
-        .get(..codec.code_len_for(D, n))
-        .ok_or(WireError::Truncated)?;
-    let bits = codec.bits_for(n) as usize;
-    let levels = 1u32 << bits;
-    let scale = log_value(bytes.first().copied().unwrap_or(0), SCALE_OFFSET);
-    let mut t = [0.0f32; D];
-    if scale > 0.0 {
-        let half = (levels / 2) as f32;
-        let mut bit = 8usize;
-        for v in t.iter_mut() {
-            let mut q = 0u32;
-            for k in 0..bits {
-                let byte = bytes.get((bit + k) / 8).copied().unwrap_or(0);
-                q |= u32::from(byte >> ((bit + k) % 8) & 1) << k;
-            }
-            *v = scale * ((q as f32 + 0.5) / half - 1.0);
-            bit += bits;
-        }
-        hadamard(&mut t);
-    }
-    let psi_at = 1 + (D * bits).div_ceil(8);
-    let psi_max = log_value(bytes.get(psi_at).copied().unwrap_or(0), PSI_OFFSET);
-    let mut scatter = [0.0f32; D];
-    let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
-    if psi_max > 0.0 {
-        for b in 0..blocks.get() {
-            let c = bytes.get(psi_at + 1 + b / 2).copied().unwrap_or(0) >> (4 * (b % 2)) & 0x0f;
-            let v = psi_max * f32math::pow2_steps(-i32::from(c), BLOCK_STEPS_PER_OCTAVE);
-            for p in scatter
-                .get_mut(block_range(D, blocks, b))
-                .unwrap_or_default()
-            {
-                *p = v;
-            }
-        }
-    }
-    Ok(ObsStats {
-        count,
-        mean: t,
-        scatter,
-    })
-}
-
-/// Largest error of a decoded mean, ‖μ̂ − μ‖₂, for the μ scale code sent and the summary's point count:
-/// √D × half a quantization step.
-pub fn mean_error_bound(codec: SummaryCodec, dim: usize, scale_code: u8, count: u32) -> f32 {
-    let scale = log_value(scale_code, SCALE_OFFSET);
-    libm::sqrtf(dim as f32) * scale / (1u32 << codec.bits_for(count)) as f32
-}
-
 /// Write one summary: key deltas, residency delta with the final flag, point count, codes. `codes` come
-/// from [`encode_codes`]. Returns the bytes written and advances `base`.
+/// from [`encode_codes`](super::encode_codes). Returns the bytes written and advances `base`.
 #[allow(clippy::too_many_arguments)]
 pub fn encode_summary(
     base: &mut DeltaBase,
@@ -450,7 +105,7 @@ pub fn encode_summary(
 }
 
 /// Write a summary's head (key deltas, residency delta with the final flag, point count) and advance
-/// `base`; the caller appends the codes ([`encode_codes`]) right after. Returns the bytes written.
+/// `base`; the caller appends the codes ([`encode_codes`](super::encode_codes)) right after. Returns the bytes written.
 pub fn encode_summary_head(
     base: &mut DeltaBase,
     key: VoxelKey,
@@ -496,9 +151,11 @@ pub fn decode_summary<const D: usize>(
     }
     let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
     let obs = decode_codes::<D>(codec, count as f32, codes)?;
-    let psi_at = 1 + (D * codec.bits_for(count as u32) as usize).div_ceil(8);
+    let count = count as u32;
+    let psi_at = codec.mean_len_for(D, count);
+    let rest_at = codec.lead_len_for(count);
     let at_ceiling = Ceiling {
-        mean_scale: codes.first() == Some(&u8::MAX),
+        mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
         psi: codes.get(psi_at) == Some(&u8::MAX),
     };
     *base = DeltaBase { key, residency };

@@ -1,4 +1,5 @@
-use super::summary::{block_range, hadamard, put_varint, unzigzag, zigzag};
+use super::codec::{block_range, hadamard};
+use super::summary::{put_varint, unzigzag, zigzag};
 use super::*;
 use crate::config::{KernelMode, MapConfig, Prior};
 use crate::key::VoxelKey;
@@ -137,7 +138,7 @@ fn summary_round_trip_within_bounds() {
         let mut codes = [0u8; 64];
         encode_codes(codec, &sent[i], &mut codes).unwrap();
         assert!(
-            err <= mean_error_bound(codec, 64, codes[0], sent[i].count as u32) * 1.0001,
+            err <= mean_error_bound(codec, 64, &codes, sent[i].count as u32) * 1.0001,
             "mean error {err}"
         );
         // The largest block mean is sent relative to the largest entry, rounded up.
@@ -168,6 +169,8 @@ fn block_means_of_the_scatter_merge_additively() {
         mean_bits: 8,
         psi_blocks: 8,
         mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
     };
     let s = sample::<64>(3);
     let mut codes = [0u8; 128];
@@ -219,4 +222,75 @@ fn body_round_trip_and_version_check() {
         SessionConfig::new(&other, 64, SummaryCodec::DEFAULT, 0xdead_beef).id(),
         config.id()
     );
+}
+
+#[test]
+fn a_lead_band_codes_the_leading_components_finer_and_keeps_the_rest_as_without_one() {
+    // A PCA-like mean: 8 strong leading components, 56 weak ones.
+    let mut stats = sample::<64>(7);
+    for (i, m) in stats.mean.iter_mut().enumerate() {
+        *m *= if i < 8 { 10.0 } else { 0.3 };
+    }
+    let plain = SummaryCodec {
+        mean_bits: 3,
+        psi_blocks: 2,
+        mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
+    };
+    let lead = SummaryCodec {
+        lead: 8,
+        lead_bits: 3,
+        ..plain
+    };
+    lead.validate(64).unwrap();
+    let n = stats.count as u32;
+    // Lead band: its scale + 8 × 6 bits; the rest: its scale + 56 × 3 bits; then the scatter.
+    assert_eq!(lead.lead_len_for(n), 1 + 6);
+    assert_eq!(lead.mean_len_for(64, n), 7 + 1 + 21);
+    assert_eq!(lead.code_len_for(64, n), 29 + 1 + 1);
+    assert_eq!(lead.code_len_for(64, 1), 29, "one point: no scatter");
+    // With growth, the lead band gains a bit per doubling of n, the rest one per two doublings.
+    let grows = SummaryCodec {
+        mean_bits_growth: 3,
+        ..lead
+    };
+    let bits = |n: u32| (grows.lead_bits_for(n), grows.rest_bits_for(n));
+    assert_eq!(bits(1), (6, 3));
+    assert_eq!(bits(2), (7, 4));
+    assert_eq!(bits(4), (8, 4));
+    assert_eq!(bits(8), (8, 5));
+    assert_eq!(bits(32), (8, 6));
+    assert_eq!(bits(1 << 20), (8, 6));
+    // Without a lead band, growth is a bit per doubling for all (protocol 3's rule).
+    assert_eq!(SummaryCodec { lead: 0, ..grows }.rest_bits_for(8), 6);
+    let (mut a, mut b) = ([0u8; 64], [0u8; 64]);
+    let la = encode_codes(plain, &stats, &mut a).unwrap();
+    let lb = encode_codes(lead, &stats, &mut b).unwrap();
+    assert_eq!(lb, lead.code_len_for(64, n));
+    let pa = decode_codes::<64>(plain, stats.count, &a[..la]).unwrap();
+    let pb = decode_codes::<64>(lead, stats.count, &b[..lb]).unwrap();
+    let err = |got: &ObsStats<64>| {
+        libm::sqrtf(
+            got.mean
+                .iter()
+                .zip(&stats.mean)
+                .map(|(x, y)| (x - y) * (x - y))
+                .sum(),
+        )
+    };
+    assert!(err(&pb) <= mean_error_bound(lead, 64, &b[..lb], n) * 1.0001);
+    assert!(err(&pa) <= mean_error_bound(plain, 64, &a[..la], n) * 1.0001);
+    // Here the lead band's error is a fraction of one band's: the energy is where the bits are.
+    assert!(err(&pb) < 0.5 * err(&pa), "{} vs {}", err(&pb), err(&pa));
+    // The scatter is sent the same way behind either mean.
+    assert_eq!(pa.scatter, pb.scatter);
+    // A lead band must leave components for the rest, and at most 6 more bits.
+    assert!(SummaryCodec { lead: 64, ..lead }.validate(64).is_err());
+    assert!(SummaryCodec {
+        lead_bits: 7,
+        ..lead
+    }
+    .validate(64)
+    .is_err());
 }

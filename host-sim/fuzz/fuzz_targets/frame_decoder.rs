@@ -26,6 +26,16 @@ fuzz_target!(|data: &[u8]| {
                                 mean_bits: 8,
                                 psi_blocks: 64,
                                 mean_bits_growth: 0,
+                                lead: 0,
+                                lead_bits: 0,
+                            },
+                            // The demo's: a lead band.
+                            SummaryCodec {
+                                mean_bits: 3,
+                                psi_blocks: 2,
+                                mean_bits_growth: 3,
+                                lead: 8,
+                                lead_bits: 3,
                             },
                         ] {
                             for s in batch.iter::<64>(codec) {

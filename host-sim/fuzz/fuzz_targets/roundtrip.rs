@@ -31,6 +31,9 @@ fuzz_target!(|data: &[u8]| {
         mean_bits: 2 + data[0] % 7,
         psi_blocks: 1 + data[1] % D as u8,
         mean_bits_growth: data[0] / 7 % 4,
+        // A lead band of 0..D−1 components (0 = none) with 0..=6 more bits.
+        lead: data[1] / 16 % D as u8,
+        lead_bits: data[0] / 28 % 7,
     };
     let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
     let mut enc = FrameEncoder::<D, 2048, 256>::new(config, EncoderSettings::new(1, 1)).unwrap();

@@ -13,6 +13,8 @@ fn map() -> GlobalMap<D> {
             mean_bits: 8,
             psi_blocks: 4,
             mean_bits_growth: 0,
+            lead: 0,
+            lead_bits: 0,
         },
         0,
     );

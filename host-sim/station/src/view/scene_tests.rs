@@ -11,6 +11,8 @@ fn map() -> GlobalMap<D> {
         mean_bits: 8,
         psi_blocks: 4,
         mean_bits_growth: 0,
+        lead: 0,
+        lead_bits: 0,
     };
     GlobalMap::new(SessionConfig::new(&MapConfig::default(), D, codec, 0)).unwrap()
 }
