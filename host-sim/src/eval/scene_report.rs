@@ -41,17 +41,7 @@ pub fn run(
 ) -> Result<Report> {
     let vocab = Vocabulary::builtin();
     let source = SceneSource::new(scene, options, setup.seed)?;
-    if let (Some(t), Some(_)) = (source.tile(), &options.tile.las) {
-        println!(
-            "{}: {}; map scale: {}",
-            source.title(),
-            t.summary(),
-            source.scale_note()
-        );
-    }
-    let train = source.sequence(source.budget(), true);
-    let test = source.sequence(source.budget(), false);
-    source.check_enough(&train, &test)?;
+    let (train, test) = source.train_and_test()?;
     let setup = &Setup {
         device_window: source.device_window(&test.config),
         ..*setup
