@@ -60,7 +60,7 @@ pub fn query(args: &QueryArgs) -> Result<()> {
     };
     let dec = experiment::decoding(&vocab, &train, &setup)?;
     let frames = experiment::encode(&test, &dec, &setup);
-    let results = experiment::run(
+    let results = crate::eval::runner::run(
         &[Method::OnDevice(test.config.filter_size())],
         &experiment::Inputs {
             frames: &frames,
