@@ -68,7 +68,7 @@ fn running_mean_equals_latentbki_f1_and_device_tracks_f32() {
         dec: &dec,
         setup: &setup,
     };
-    let r = experiment::run(&methods, &inputs, None, None, "test").unwrap();
+    let r = host_sim::eval::runner::run(&methods, &inputs, None, None, "test").unwrap();
     // Same voxels observed, and (up to f32 rounding of the two averaging orders) the same predictions.
     assert_eq!(r[0].confusion.unknown(), r[1].confusion.unknown());
     let (a, b) = (r[0].confusion.accuracy(), r[1].confusion.accuracy());

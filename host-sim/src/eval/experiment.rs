@@ -11,18 +11,15 @@
 //!    authors' t_var and the Student-t covariance) and sampling uncertainty (the authors' procedure and the
 //!    model's predictive), for the sparsification analysis.
 //!
-//! Methods (and the sparsity sweep's runs) run in parallel threads (one run per thread, frames in order), so
-//! results do not depend on scheduling: same seed, same table.
+//! Methods (and the sparsity sweep's runs) run in parallel threads ([`super::runner`]: one run per thread,
+//! frames in order), so results do not depend on scheduling: same seed, same table.
 
 use super::methods::{
     CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, Mapper, OnDevice, Radio,
     RunningMean, SegmentationOnly, D,
 };
 use super::metrics::Confusion;
-pub use super::pool::progress;
-use super::pool::{parallel, points, weight};
 use super::sparsification::Scored;
-pub use super::sweep::{Sweep, SweepPoint};
 use crate::sim::encoder::{Encoder, NoiseModel};
 use crate::sim::vocab::{Vocabulary, FULL_DIM};
 use crate::sim::{mix_all, pca, unit, Sequence};
@@ -33,7 +30,6 @@ use latentbki::{
 };
 use rand_xoshiro::rand_core::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
-use std::sync::Mutex;
 use std::time::Instant;
 
 /// Settings of an experiment that are not the scene's.
@@ -404,70 +400,17 @@ pub struct Inputs<'a> {
     pub setup: &'a Setup,
 }
 
-/// Run `methods` over the same frames in parallel; `score` names the method whose held-out points get
-/// uncertainties; `link` receives the device map's evictions. Results come back in the order asked.
-pub fn run(
-    methods: &[Method],
-    inputs: &Inputs<'_>,
-    score: Option<Method>,
-    link: Option<Box<dyn Radio>>,
-    message: &str,
-) -> anyhow::Result<Vec<MethodResult>> {
-    let (results, _) = run_with_sweep(methods, inputs, score, link, &Sweep::none(), message)?;
-    Ok(results)
+/// How heavy a run of `m` is per point, for scheduling: the kernel's reach f³ dominates, and the device map
+/// also quantizes and streams its evictions (about four times the f32 map's time).
+pub(super) fn weight(m: &Method) -> u64 {
+    match m {
+        Method::OnDevice(f) | Method::OnDeviceInt8(f) => 4 * (10 + u64::from(*f).pow(3)),
+        Method::LatentBki(f) => 10 + u64::from(*f).pow(3),
+        Method::ConvBki(f) => 5 + u64::from(*f).pow(3),
+        _ => 1,
+    }
 }
 
-/// [`run`], and the sparsity sweep's runs in the same pool of worker threads (one pool keeps both cores
-/// busy: the slow device map would otherwise leave the other idle).
-pub fn run_with_sweep(
-    methods: &[Method],
-    inputs: &Inputs<'_>,
-    score: Option<Method>,
-    link: Option<Box<dyn Radio>>,
-    sweep: &Sweep,
-    message: &str,
-) -> anyhow::Result<(Vec<MethodResult>, Vec<SweepPoint>)> {
-    enum Job {
-        Method(Method),
-        Sweep(usize, u8),
-    }
-    enum Done {
-        Method(anyhow::Result<MethodResult>),
-        Sweep(anyhow::Result<SweepPoint>),
-    }
-    let jobs: Vec<Job> = methods
-        .iter()
-        .map(|&m| Job::Method(m))
-        .chain(sweep.jobs().map(|(r, f)| Job::Sweep(r, f)))
-        .collect();
-    let steps = methods.len() * inputs.frames.len() + sweep.steps();
-    let bar = progress(steps as u64, message);
-    let link = Mutex::new(link);
-    let done = parallel(
-        &jobs,
-        |job| match job {
-            Job::Method(m) => points(inputs.frames) * weight(m),
-            Job::Sweep(r, f) => points(&sweep.runs[*r].frames) * weight(&Method::LatentBki(*f)),
-        },
-        |job| match *job {
-            Job::Method(m) => {
-                let l = if matches!(m, Method::OnDevice(_)) {
-                    link.lock().expect("link").take()
-                } else {
-                    None
-                };
-                Done::Method(run_one(m, inputs, score == Some(m), l, &bar))
-            }
-            Job::Sweep(r, f) => Done::Sweep(sweep.run(r, f, inputs.dec, inputs.setup, &bar)),
-        },
-    );
-    bar.finish_and_clear();
-    let (mut results, mut points) = (Vec::new(), Vec::new());
-    for d in done {
-        match d {
-            Done::Method(r) => results.push(r?),
-            Done::Sweep(p) => points.push(p?),
-        }
-    }
-    Ok((results, points))
+pub(super) fn points(frames: &[EncodedFrame]) -> u64 {
+    frames.iter().map(|f| f.points.len() as u64).sum()
 }

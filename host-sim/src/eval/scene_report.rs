@@ -3,11 +3,13 @@
 //! [`super::scenes`], which says *what* is mapped (the scene, its sensor and map scale); this is *how* an
 //! evaluation of it runs.
 
-use super::experiment::{self, Method, MethodResult, Setup, SweepPoint};
+use super::experiment::{self, Method, MethodResult, Setup};
 use super::figures::{self, TopDown};
 use super::methods::{Decoder, Radio};
+use super::runner;
 use super::scenes::{tile_query, Scene, SceneOptions, SceneSource};
 use super::sparsification::{self, Sparsification};
+use super::sweep::{Sweep, SweepPoint};
 use crate::sim::vocab::Vocabulary;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
@@ -41,17 +43,7 @@ pub fn run(
 ) -> Result<Report> {
     let vocab = Vocabulary::builtin();
     let source = SceneSource::new(scene, options, setup.seed)?;
-    if let (Some(t), Some(_)) = (source.tile(), &options.tile.las) {
-        println!(
-            "{}: {}; map scale: {}",
-            source.title(),
-            t.summary(),
-            source.scale_note()
-        );
-    }
-    let train = source.sequence(source.budget(), true);
-    let test = source.sequence(source.budget(), false);
-    source.check_enough(&train, &test)?;
+    let (train, test) = source.train_and_test()?;
     let setup = &Setup {
         device_window: source.device_window(&test.config),
         ..*setup
@@ -65,7 +57,7 @@ pub fn run(
         Scene::Indoor => &options.sweep_indoor,
     };
     let sweep = if sweep && !budgets.is_empty() {
-        experiment::Sweep::new(
+        Sweep::new(
             &|b| source.sequence(b, false),
             budgets,
             &options.sweep_filters,
@@ -73,9 +65,9 @@ pub fn run(
             setup,
         )
     } else {
-        experiment::Sweep::none()
+        Sweep::none()
     };
-    let (results, sweep_points) = experiment::run_with_sweep(
+    let (results, sweep_points) = runner::run_with_sweep(
         &methods,
         &experiment::Inputs {
             frames: &frames,

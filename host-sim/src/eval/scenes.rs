@@ -335,6 +335,23 @@ impl SceneSource {
         }
     }
 
+    /// The training and the test sequence at the scene's budget, checked ([`Self::check_enough`]); a
+    /// user's own tile (`--las`) is announced first, with its summary and map scale.
+    pub fn train_and_test(&self) -> Result<(Sequence, Sequence)> {
+        if let (Some(t), Some(_)) = (self.tile(), &self.options.tile.las) {
+            println!(
+                "{}: {}; map scale: {}",
+                self.title(),
+                t.summary(),
+                self.scale_note()
+            );
+        }
+        let train = self.sequence(self.budget(), true);
+        let test = self.sequence(self.budget(), false);
+        self.check_enough(&train, &test)?;
+        Ok((train, test))
+    }
+
     /// A run needs more than D points in the training sequence (to fit the D-component PCA) and in the
     /// test sequence: otherwise stop with one line that says what to change.
     pub fn check_enough(&self, train: &Sequence, test: &Sequence) -> Result<()> {

@@ -1,7 +1,6 @@
 //! The sparsity sweep (paper Fig. 3): the same mapper at several sensor budgets and filter sizes. Its
 //! own module because it is a second kind of job for the worker pool, with its own inputs (one encoded
-//! sequence per budget) and its own result (a point per budget and filter), beside the methods' runs in
-//! [`super::experiment`].
+//! sequence per budget) and its own result (a point per budget and filter), beside the methods' runs ([`super::runner`]).
 
 use super::experiment::{encode, run_one, Decoding, Inputs, Method, Setup};
 use super::methods::EncodedFrame;
@@ -26,7 +25,7 @@ pub struct SweepPoint {
 
 /// The sparsity sweep (paper Fig. 3): accuracy and mIoU of LatentBKI with each filter size at each sensor
 /// budget. Each budget's sequence is built and encoded once; the runs go to
-/// [`run_with_sweep`](super::experiment::run_with_sweep).
+/// [`run_with_sweep`](super::runner::run_with_sweep).
 pub struct Sweep {
     pub(super) runs: Vec<SweepRun>,
     filters: Vec<u8>,

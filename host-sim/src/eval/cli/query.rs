@@ -52,17 +52,7 @@ pub fn query(args: &QueryArgs) -> Result<()> {
         ..SceneOptions::default()
     };
     let source = SceneSource::new(scene, &options, args.seed)?;
-    if let (Some(t), Some(_)) = (source.tile(), &args.tile.las) {
-        println!(
-            "{}: {}; map scale: {}",
-            source.title(),
-            t.summary(),
-            source.scale_note()
-        );
-    }
-    let train = source.sequence(source.budget(), true);
-    let test = source.sequence(source.budget(), false);
-    source.check_enough(&train, &test)?;
+    let (train, test) = source.train_and_test()?;
     let setup = Setup {
         seed: args.seed,
         device_window: source.device_window(&test.config),
@@ -70,7 +60,7 @@ pub fn query(args: &QueryArgs) -> Result<()> {
     };
     let dec = experiment::decoding(&vocab, &train, &setup)?;
     let frames = experiment::encode(&test, &dec, &setup);
-    let results = experiment::run(
+    let results = crate::eval::runner::run(
         &[Method::OnDevice(test.config.filter_size())],
         &experiment::Inputs {
             frames: &frames,

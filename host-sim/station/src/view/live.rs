@@ -1,99 +1,20 @@
 //! The view thread: inbox from ingest in, scene updates out to the WebSocket server and the recording.
-//! This module is ingest's side ([`Viewer`]: start, push, finish); the thread's loop is `worker`.
+//! This module is ingest's side ([`Viewer`]: start, push, finish); the thread's loop is `worker`, what the
+//! two share is `shared`.
 
 use super::guard::{self, QueryParameter, Subscriptions, ViewRequests};
 use super::scene::Layer;
-use super::worker::Worker;
+use super::shared::{Channels, Inbox, Shared, MAX_ARRIVALS};
+use super::worker::{ViewerSummary, Worker};
 use super::{ViewError, ViewOptions, LEGEND_TOPIC, STATUS_TOPIC};
-use crate::{BaseStation, GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
+use crate::{BaseStation, GlobalMap};
 use foxglove::messages::SceneUpdate;
-use foxglove::{Context, Encode, RawChannel, Schema, SinkId, WebSocketServerHandle};
+use foxglove::{Context, Encode, RawChannel, Schema, WebSocketServerHandle};
 use latentbki::key::VoxelKey;
-use latentbki::wire::SessionConfig;
-use std::collections::{BTreeMap, HashMap};
-use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::collections::HashMap;
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-
-/// Arrival times kept per view update at most (a flood of tiny chunks must not grow the inbox).
-pub(super) const MAX_ARRIVALS: usize = 4096;
-/// Latency samples kept at most.
-pub(super) const MAX_SAMPLES: usize = 1 << 20;
-
-/// The link's counters as ingest last saw them.
-pub(super) type LinkCounters = (ReceiveStats, BTreeMap<(u16, u32), SessionState>);
-
-/// What ingest hands the view thread.
-pub(super) struct Inbox<const D: usize> {
-    pub(super) config: Option<SessionConfig>,
-    pub(super) voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
-    pub(super) link: Option<LinkCounters>,
-    pub(super) arrivals: Vec<Instant>,
-    pub(super) full: Vec<(SinkId, String)>,
-    pub(super) phrase: Option<String>,
-    pub(super) stop: bool,
-}
-
-impl<const D: usize> Inbox<D> {
-    pub(super) fn is_empty(&self) -> bool {
-        self.voxels.is_empty()
-            && self.link.is_none()
-            && self.full.is_empty()
-            && self.phrase.is_none()
-            && self.config.is_none()
-    }
-}
-
-pub(super) struct Shared<const D: usize> {
-    pub(super) inbox: Mutex<Inbox<D>>,
-    pub(super) wake: Condvar,
-    pub(super) phrase: Mutex<String>,
-}
-
-impl<const D: usize> Shared<D> {
-    pub(super) fn inbox(&self) -> std::sync::MutexGuard<'_, Inbox<D>> {
-        self.inbox.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-}
-
-impl<const D: usize> ViewRequests for Shared<D> {
-    fn full_scene(&self, sink: SinkId, topic: &str) {
-        self.inbox().full.push((sink, topic.to_string()));
-        self.wake.notify_one();
-    }
-    fn set_phrase(&self, phrase: String) {
-        *self.phrase.lock().unwrap_or_else(PoisonError::into_inner) = phrase.clone();
-        self.inbox().phrase = Some(phrase);
-        self.wake.notify_one();
-    }
-    fn phrase(&self) -> String {
-        self.phrase
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone()
-    }
-}
-
-/// What the view sent, for the summary line and the figures.
-#[derive(Clone, Debug, Default)]
-pub struct ViewerSummary {
-    /// Voxels in the last scene.
-    pub voxels: usize,
-    /// Messages published (broadcast, to one late joiner, or to the recording).
-    pub messages: u64,
-    /// Their bytes (encoded payloads).
-    pub bytes: u64,
-    /// View updates sent.
-    pub updates: u64,
-    /// For each chunk of frames: its arrival at ingest to the end of the view update that showed it.
-    pub latencies: Vec<Duration>,
-    /// Client messages the server refused (garbage, oversized, unknown channels).
-    pub refused: u64,
-    /// Phrases that could not be encoded.
-    pub phrase_errors: Vec<String>,
-    /// From the view's start to its finish.
-    pub elapsed: Duration,
-}
 
 /// The live view and/or recording of one base station.
 pub struct Viewer<const D: usize> {
@@ -101,14 +22,6 @@ pub struct Viewer<const D: usize> {
     thread: Option<JoinHandle<ViewerSummary>>,
     server: Option<WebSocketServerHandle>,
     port: Option<u16>,
-}
-
-pub(super) struct Channels {
-    /// The context the channels and sinks live in (dropping it would close them).
-    pub(super) _context: Arc<Context>,
-    pub(super) layers: Vec<(Layer, Arc<RawChannel>)>,
-    pub(super) legend: Arc<RawChannel>,
-    pub(super) status: Arc<RawChannel>,
 }
 
 fn json_channel(ctx: &Arc<Context>, topic: &str, name: &str) -> Arc<RawChannel> {

@@ -28,12 +28,14 @@
 pub mod guard;
 mod live;
 pub mod scene;
+mod shared;
 mod worker;
 
 /// The Foxglove SDK the view is built on (its message types, for callers of [`Scene`]).
 pub use foxglove;
-pub use live::{Viewer, ViewerSummary};
+pub use live::Viewer;
 pub use scene::{BlockKey, Layer, Scene, VoxelRow};
+pub use worker::ViewerSummary;
 
 use latentbki::decode::Codebook;
 use std::net::SocketAddr;

@@ -4,8 +4,8 @@
 //! because this side owns the scene and never blocks ingest.
 
 use super::guard::{self, ViewRequests};
-use super::live::{Channels, Inbox, Shared, ViewerSummary, MAX_SAMPLES};
 use super::scene::{Layer, Scene};
+use super::shared::{Channels, Inbox, Shared, MAX_SAMPLES};
 use super::{LEGEND_TOPIC, STATUS_TOPIC};
 use crate::export::label_colour;
 use crate::{GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
@@ -18,6 +18,27 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::sync::{Arc, PoisonError};
 use std::time::{Duration, Instant};
+
+/// What the view sent, for the summary line and the figures.
+#[derive(Clone, Debug, Default)]
+pub struct ViewerSummary {
+    /// Voxels in the last scene.
+    pub voxels: usize,
+    /// Messages published (broadcast, to one late joiner, or to the recording).
+    pub messages: u64,
+    /// Their bytes (encoded payloads).
+    pub bytes: u64,
+    /// View updates sent.
+    pub updates: u64,
+    /// For each chunk of frames: its arrival at ingest to the end of the view update that showed it.
+    pub latencies: Vec<Duration>,
+    /// Client messages the server refused (garbage, oversized, unknown channels).
+    pub refused: u64,
+    /// Phrases that could not be encoded.
+    pub phrase_errors: Vec<String>,
+    /// From the view's start to its finish.
+    pub elapsed: Duration,
+}
 
 pub(super) struct Worker<const D: usize, const K: usize> {
     pub(super) shared: Arc<Shared<D>>,

@@ -1,0 +1,111 @@
+//! Packing frames: summaries are appended to the frame being filled while it fits, then the frame's
+//! body (header + message) gets its CRC-32 and is COBS-encoded between two delimiters.
+
+use super::{FrameEncoder, VOXEL_FRAME_OVERHEAD};
+use crate::frame::wire_len;
+use crate::key::VoxelKey;
+use crate::obs::ObsStats;
+use crate::wire::{
+    encode_body, encode_codes, encode_summary_head, DeltaBase, FrameHeader, Message, SummaryCodec,
+    VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
+};
+
+impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    pub(super) fn header(&self) -> FrameHeader {
+        FrameHeader {
+            version: PROTOCOL_VERSION,
+            robot: self.settings.robot,
+            session: self.settings.session,
+            seq: self.seq,
+            config_id: self.config_id,
+        }
+    }
+
+    /// Serialize a control message as the next frame into `scratch`; returns its wire length.
+    pub(super) fn build_message(&mut self, message: Message<'_>) -> Result<usize, WireError> {
+        let len = encode_body(&self.header(), &message, &mut self.body)?;
+        self.finish(len)
+    }
+
+    /// Serialize the `count` summaries in `scratch[..used]` as the next frame into `scratch`.
+    pub(super) fn build_voxels(&mut self, count: u16, used: usize) -> Result<usize, WireError> {
+        let header = self.header();
+        let batch = VoxelBatch {
+            count,
+            summaries: self.scratch.get(..used).ok_or(WireError::BufferFull)?,
+        };
+        let len = encode_body(&header, &Message::Voxels(batch), &mut self.body)?;
+        self.finish(len)
+    }
+
+    /// Append the CRC to `body[..len]`, COBS it into `scratch` between two delimiters.
+    pub(super) fn finish(&mut self, len: usize) -> Result<usize, WireError> {
+        let body = self.body.get(..len).ok_or(WireError::BufferFull)?;
+        let crc = CRC32.checksum(body);
+        self.body
+            .get_mut(len..len + 4)
+            .ok_or(WireError::BufferFull)?
+            .copy_from_slice(&crc.to_le_bytes());
+        let body = self.body.get(..len + 4).ok_or(WireError::BufferFull)?;
+        let (first, out) = self
+            .scratch
+            .split_first_mut()
+            .ok_or(WireError::BufferFull)?;
+        *first = 0;
+        let n = cobs::try_encode(body, out).map_err(|_| WireError::BufferFull)?;
+        *out.get_mut(n).ok_or(WireError::BufferFull)? = 0;
+        Ok(n + 2)
+    }
+}
+
+/// Where a summary's quantized part comes from: an evicted voxel's, encoded when it was queued, or a live
+/// voxel's statistics, encoded now.
+pub(super) enum Codes<'a, const D: usize> {
+    Queued(&'a [u8]),
+    Live(&'a ObsStats<D>),
+}
+
+/// Append one summary — (key, residency, point count, codes) — to the frame being filled in
+/// `out[..*used]` if the frame still fits in `limit` wire bytes; `base` is the delta-coding state. Both
+/// kinds of summary go through here; a queued one is marked evicted (closed), a live one is not.
+pub(super) fn append<const D: usize>(
+    out: &mut [u8],
+    used: &mut usize,
+    base: &mut DeltaBase,
+    limit: usize,
+    codec: SummaryCodec,
+    (key, residency, count, codes): (VoxelKey, u32, u32, Codes<'_, D>),
+) -> bool {
+    let mut trial = *base;
+    let evicted = matches!(codes, Codes::Queued(_));
+    let Some(Ok(h)) = out
+        .get_mut(*used..)
+        .map(|o| encode_summary_head(&mut trial, key, residency, evicted, count, o))
+    else {
+        return false;
+    };
+    let at = *used + h;
+    let c = match codes {
+        Codes::Queued(codes) => {
+            // The queue entry has room for the largest codes; this summary's are the leading ones.
+            let codes = codes.get(..codec.code_len_for(D, count)).unwrap_or(codes);
+            match out.get_mut(at..at + codes.len()) {
+                Some(o) => {
+                    o.copy_from_slice(codes);
+                    codes.len()
+                }
+                None => return false,
+            }
+        }
+        Codes::Live(obs) => match out.get_mut(at..).map(|o| encode_codes(codec, obs, o)) {
+            Some(Ok(c)) => c,
+            _ => return false,
+        },
+    };
+    if wire_len(VOXEL_FRAME_OVERHEAD + at + c) > limit {
+        return false;
+    }
+    *used = at + c;
+    *base = trial;
+    true
+}
