@@ -17,8 +17,9 @@ pub struct Summary<const D: usize> {
     pub is_final: bool,
     /// What was observed in the voxel during this residency. n is exact; m and S are quantized.
     pub obs: ObsStats<D>,
-    /// The mean's scale and the largest scatter entry were sent with the codec's top code (255): each value
-    /// was clamped there (the mean's scale at ≈ 6.0e4, S at ≈ 9.6e5) or lies within 1/8 octave below it.
+    /// A mean band's scale (the lead band's or the others') and the largest scatter entry were sent with
+    /// the codec's top code (255): each value was clamped there (a mean scale at ≈ 6.0e4, S at ≈ 9.6e5) or
+    /// lies within 1/8 octave below it.
     /// Receivers count it.
     pub at_ceiling: Ceiling,
 }
@@ -26,7 +27,7 @@ pub struct Summary<const D: usize> {
 /// Which of a summary's log-coded values were sent with the top code (see [`Summary::at_ceiling`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Ceiling {
-    /// The mean's scale code was 255.
+    /// A mean band's scale code (the lead band's or the others') was 255.
     pub mean_scale: bool,
     /// The largest-scatter code was 255.
     pub psi: bool,
