@@ -16,6 +16,9 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+/// How long [`Viewer::finish`] waits for the clients' connections to close.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
+
 /// The live view and/or recording of one base station.
 pub struct Viewer<const D: usize> {
     shared: Arc<Shared<D>>,
@@ -178,7 +181,24 @@ impl<const D: usize> Viewer<D> {
             .map(|t| t.join().unwrap_or_default())
             .unwrap_or_default();
         if let Some(s) = self.server.take() {
-            s.stop().wait_blocking();
+            // A graceful close waits until every client has taken its close frame; a client that stopped
+            // reading (its socket full) would hold that forever, and with it the base station's exit. Wait
+            // at most SHUTDOWN_GRACE on a helper thread; past it, go on (the helper keeps the handle and
+            // ends with the stalled connection, or with the process).
+            let shutdown = s.stop();
+            let (done, finished) = std::sync::mpsc::channel();
+            std::thread::Builder::new()
+                .name("view-shutdown".into())
+                .spawn(move || {
+                    shutdown.wait_blocking();
+                    done.send(()).ok();
+                })
+                .expect("the shutdown thread starts");
+            if finished.recv_timeout(SHUTDOWN_GRACE).is_err() {
+                tracing::warn!(
+                    "view: a client did not close within {SHUTDOWN_GRACE:?}; not waiting for it"
+                );
+            }
         }
         summary
     }
