@@ -68,6 +68,42 @@ fn lz(v: u32) -> u32 {
     v.leading_zeros()
 }
 
+/// a · b, 32 × 32 → 64 bits. v6-M has no long multiply (`umull`): there a 64-bit product is a call to
+/// `__aeabi_lmul` (≈ 50 instructions, a 64 × 64 product); four 16 × 16-bit `muls` and the carries are ≈ 15.
+#[inline(always)]
+fn mul32(a: u32, b: u32) -> u64 {
+    #[cfg(target_abi = "eabi")]
+    {
+        mul32_halves(a, b)
+    }
+    #[cfg(not(target_abi = "eabi"))]
+    {
+        u64::from(a) * u64::from(b)
+    }
+}
+
+/// [`mul32`] from 16-bit halves (what a v6-M runs; tested against the 64-bit product on the host).
+#[cfg(any(target_abi = "eabi", test))]
+#[inline(always)]
+fn mul32_halves(a: u32, b: u32) -> u64 {
+    let (ah, al, bh, bl) = (a >> 16, a & 0xFFFF, b >> 16, b & 0xFFFF);
+    let (mid, carry) = (ah * bl).overflowing_add(al * bh);
+    let (lo, carry_lo) = (al * bl).overflowing_add(mid << 16);
+    let hi = ah * bh + (mid >> 16) + (u32::from(carry) << 16) + u32::from(carry_lo);
+    (u64::from(hi) << 32) | u64::from(lo)
+}
+
+/// a · b for a signed `a` (|a| < 2³¹), as [`mul32`].
+#[inline(always)]
+fn mul32s(a: i32, b: u32) -> i64 {
+    let p = mul32(a.unsigned_abs(), b) as i64;
+    if a < 0 {
+        -p
+    } else {
+        p
+    }
+}
+
 /// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
 /// 64-bit shift is long on a 32-bit MCU.)
 #[cfg_attr(
@@ -235,13 +271,13 @@ impl Int8Fix {
     )),
     inline
 )]
-fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: i64, rn1: i64) -> (i32, i32) {
+fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: u32, rn1: u32) -> (i32, i32) {
     let q = (q as i32) << (32 - MU_BITS) >> (32 - MU_BITS);
     let m0 = q.wrapping_mul(sigma);
-    let x = i64::from((sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0)));
+    let x = (sum << MEAN_FRAC).wrapping_sub((n1 as i32).wrapping_mul(m0));
     (
-        m0.wrapping_add(((x * rn + (1 << 31)) >> 32) as i32),
-        ((x * rn1 + (1 << 31)) >> 32) as i32,
+        m0.wrapping_add(((mul32s(x, rn) + (1 << 31)) >> 32) as i32),
+        ((mul32s(x, rn1) + (1 << 31)) >> 32) as i32,
     )
 }
 
@@ -262,8 +298,8 @@ fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: i64, rn1: i64) -> (i32
     )),
     inline
 )]
-fn codes_of(m: i32, r_sigma: i64, bits: u32, base: i32, dither: u32) -> (u8, u8) {
-    let u = ((i64::from(m).wrapping_mul(r_sigma) + (1 << 23)) >> 24) as i32;
+fn codes_of(m: i32, r_sigma: u32, bits: u32, base: i32, dither: u32) -> (u8, u8) {
+    let u = ((mul32s(m, r_sigma) + (1 << 23)) >> 24) as i32;
     let q = (u + (dither & 0xFF) as i32) >> 8;
     let mu = q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8;
     let psi = (psi_key(f32::from_bits(bits), (dither >> 8) as u8) as i32 - base)
@@ -281,9 +317,9 @@ struct ScatterUnits {
     /// The unit is c²·2^g.
     g: i32,
     /// n₀n₁/n with 8 fraction bits.
-    w: u64,
+    w: u32,
     /// 2³²/n₁.
-    r1: u64,
+    r1: u32,
 }
 
 /// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `k` the
@@ -315,9 +351,11 @@ fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
             (k >> 2) as i32 + u.old_shift,
         ))
     };
-    let within = (u64::from(numer) * u.r1) >> (32 + g);
-    let d2 = u64::from(d.unsigned_abs()).pow(2);
-    let between = (d2 * u.w) >> (36 + g); // d: 14 fraction bits, squared 28, w 8
+    let within = mul32(numer, u.r1) >> (32 + g);
+    let d2 = mul32(d.unsigned_abs(), d.unsigned_abs());
+    // d2 · w with w < 2¹⁷ and d2 < 2⁴⁵: its high word times w fits 32 bits.
+    let d2w = mul32(d2 as u32, u.w) + (u64::from(((d2 >> 32) as u32).wrapping_mul(u.w)) << 32);
+    let between = d2w >> (36 + g); // d: 14 fraction bits, squared 28, w 8
     let total = (old + within + between).min(u64::from(u32::MAX)) as u32;
     if total == 0 {
         return 0;
@@ -371,7 +409,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // ---- pass 1, means in code steps (MEAN_FRAC fraction bits): with x = Σc − n₁m₀, the merged mean
         // is m₀ + x/n and the new points' mean is m₀ + x/n₁ (d = x/n₁). Divisions by reciprocals (2³²/n).
         // (2³² − 1)/k: a 32-bit division (a 64-bit one links ≈ 1 KB of library code on a 32-bit MCU).
-        let recip = |k: u32| -> i64 { i64::from(u32::MAX / k.max(1)) };
+        let recip = |k: u32| -> u32 { u32::MAX / k.max(1) };
         let (rn, rn1) = (recip(n), recip(n1));
         let mut mean = [0i32; D];
         let mut diff = [0i32; D];
@@ -414,8 +452,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // f32 bit pattern of its value (what the minifloat codes are cut from).
         let g = (32 - lz(n) as i32) - 16;
         // n₀n₁/n = n₁ − n₁²/n, with 8 fraction bits (n₁²·2⁸ < 2²⁴), and 2³²/n₁: 32-bit divisions.
-        let w = u64::from((n1 << 8) - ((n1 * n1) << 8).wrapping_add(n / 2) / n);
-        let r1 = u64::from(u32::MAX / n1);
+        let w = (n1 << 8) - ((n1 * n1) << 8).wrapping_add(n / 2) / n;
+        let r1 = u32::MAX / n1;
         let ctx = ScatterUnits {
             old: n0 > 0,
             old_shift: fix.inv_s2.e - 129 - g, // minifloat 2^(E−129)·(4+f) → units, with 1/s²
@@ -451,7 +489,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // ---- pass 3, codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3:
         // the next). μ: m/σ by a reciprocal (2³²/σ) to 1/256 of a step, plus a dither below one step, floored.
         let r_sigma = if sigma > 0 {
-            i64::from(u32::MAX / sigma.unsigned_abs())
+            u32::MAX / sigma.unsigned_abs()
         } else {
             0
         };

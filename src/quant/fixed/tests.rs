@@ -30,6 +30,23 @@ impl Rng {
 }
 
 #[test]
+fn the_halves_multiply_is_the_64_bit_product() {
+    let mut rng = Rng(0x1357_9BDF);
+    let edges = [0, 1, 0xFFFF, 0x1_0000, 0x8000_0000, u32::MAX - 1, u32::MAX];
+    for &a in &edges {
+        for &b in &edges {
+            assert_eq!(mul32_halves(a, b), u64::from(a) * u64::from(b), "{a} {b}");
+        }
+    }
+    for _ in 0..100_000 {
+        let (a, b) = (rng.next(), rng.next());
+        assert_eq!(mul32_halves(a, b), u64::from(a) * u64::from(b), "{a} {b}");
+        let s = a as i32 / 2;
+        assert_eq!(mul32s(s, b), i64::from(s) * i64::from(b));
+    }
+}
+
+#[test]
 fn integer_helpers_match_f32() {
     for v in [1.0f32, 3.0, 255.0, 1000.0, 16_777_215.0] {
         assert_eq!(count_of(v.to_bits()), v as u32);
