@@ -13,11 +13,10 @@
 //!
 //! Every target cools int8 sums this way (the QEMU boards' UART streams are compared with one host twin, so
 //! all must compute the same codes). Measured with `boards/measure.sh` (depth frames, f = 3, i8 features,
-//! instructions per point): riscv32imac 3,393 → 1,854, thumbv6m 5,111 → 2,711, but the Cortex-M4F
-//! 1,004 → 1,309 — its FPU runs the f32 cooling in fewer instructions than these integer passes (≈ 150
+//! instructions per point): riscv32imac 3,393 → 1,824, thumbv6m 5,111 → 2,521, but the Cortex-M4F
+//! 1,004 → 1,312 — its FPU runs the f32 cooling in fewer instructions than these integer passes (≈ 150
 //! per dimension). The per-dimension helpers are inlined where there is an FPU and kept out of line without
-//! one (flash: riscv32imac stays under 64 KiB). thumbv6m's remaining cost is largely its library calls for
-//! 64-bit products and 32-bit divisions (`__aeabi_lmul`, `__aeabi_uidiv`).
+//! one (flash: riscv32imac stays under 64 KiB); on v6-M the 64-bit products are built from 16-bit halves.
 
 use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
 use crate::obs::{scatter_numerator, CodeSums};
