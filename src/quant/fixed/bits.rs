@@ -1,0 +1,185 @@
+//! Integer stand-ins for the float operations the fixed-point cooling needs: an f32's parts, its bit pattern
+//! built from an integer, rounded shifts, leading zeros, 32 × 32 → 64-bit products (from 16-bit halves on
+//! v6-M), and one packed code at a time.
+
+/// A positive number as m · 2^e with m in [2²³, 2²⁴) (an f32's mantissa and exponent), or zero (m = 0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) struct Parts {
+    pub(super) m: u32,
+    pub(super) e: i32,
+}
+
+impl Parts {
+    pub(super) const ZERO: Self = Self { m: 0, e: 0 };
+
+    /// From an f32's bits (zero, subnormal, negative and non-finite values give zero).
+    pub(super) fn of_bits(bits: u32) -> Self {
+        let biased = (bits >> 23) as i32;
+        if bits >> 31 != 0 || biased == 0 || biased == 255 {
+            return Self::ZERO;
+        }
+        Self {
+            m: (bits & 0x7F_FFFF) | 0x80_0000,
+            e: biased - 150,
+        }
+    }
+}
+
+/// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
+pub(super) fn lz(v: u32) -> u32 {
+    v.leading_zeros()
+}
+
+/// a · b, 32 × 32 → 64 bits. v6-M has no long multiply (`umull`): there a 64-bit product is a call to
+/// `__aeabi_lmul` (≈ 50 instructions, a 64 × 64 product); four 16 × 16-bit `muls` and the carries are ≈ 15.
+#[inline(always)]
+pub(super) fn mul32(a: u32, b: u32) -> u64 {
+    #[cfg(target_abi = "eabi")]
+    {
+        mul32_halves(a, b)
+    }
+    #[cfg(not(target_abi = "eabi"))]
+    {
+        u64::from(a) * u64::from(b)
+    }
+}
+
+/// [`mul32`] from 16-bit halves (what a v6-M runs; tested against the 64-bit product on the host).
+#[cfg(any(target_abi = "eabi", test))]
+#[inline(always)]
+pub(super) fn mul32_halves(a: u32, b: u32) -> u64 {
+    let (ah, al, bh, bl) = (a >> 16, a & 0xFFFF, b >> 16, b & 0xFFFF);
+    let (mid, carry) = (ah * bl).overflowing_add(al * bh);
+    let (lo, carry_lo) = (al * bl).overflowing_add(mid << 16);
+    let hi = ah * bh + (mid >> 16) + (u32::from(carry) << 16) + u32::from(carry_lo);
+    (u64::from(hi) << 32) | u64::from(lo)
+}
+
+/// a · b for a signed `a` (|a| < 2³¹), as [`mul32`].
+#[inline(always)]
+pub(super) fn mul32s(a: i32, b: u32) -> i64 {
+    let p = mul32(a.unsigned_abs(), b) as i64;
+    if a < 0 {
+        -p
+    } else {
+        p
+    }
+}
+
+/// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
+/// 64-bit shift is long on a 32-bit MCU.)
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
+pub(super) fn shift(p: u32, sh: i32) -> u32 {
+    if p == 0 {
+        0
+    } else if sh >= 0 {
+        if sh >= 30 || lz(p) < 2 + sh as u32 {
+            1 << 30
+        } else {
+            p << sh
+        }
+    } else {
+        let r = (-sh) as u32;
+        if r >= 32 {
+            0
+        } else {
+            (p >> (r - 1)).div_ceil(2)
+        }
+    }
+}
+
+/// The f32 bit pattern of `v · 2^e` (v > 0), mantissa truncated; 0 if it underflows, f32::MAX if too big.
+#[cfg_attr(
+    any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    ),
+    inline(never)
+)]
+#[cfg_attr(
+    not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )),
+    inline
+)]
+pub(super) fn f32_bits(v: u32, e: i32) -> u32 {
+    if v == 0 {
+        return 0;
+    }
+    let z = lz(v) as i32;
+    // v = mant · 2^(8 − z) with mant in [2²³, 2²⁴).
+    let mant = (v << z) >> 8;
+    let biased = e + (8 - z) + 150;
+    if biased <= 0 {
+        0
+    } else if biased >= 255 {
+        f32::MAX.to_bits()
+    } else {
+        ((biased as u32) << 23) | (mant & 0x7F_FFFF)
+    }
+}
+
+/// The top 16 bits of `v` > 0 and the power of two they stand for: v ≈ t · 2^e with t in [2¹⁵, 2¹⁶).
+#[inline]
+pub(super) fn top16(v: u32) -> (u32, i32) {
+    let z = lz(v) as i32;
+    ((v << z) >> 16, 16 - z)
+}
+
+/// Code `i` of a section packed by [`super::super::pack`] (`width` ≤ 8 bits), read on its own: the loops here stay
+/// rolled (small code) instead of unpacking 8 codes at a time.
+#[inline(always)]
+pub(super) fn code_at(data: &[u8], width: u32, i: usize) -> u32 {
+    let bit = i * width as usize;
+    let lo = u32::from(data.get(bit / 8).copied().unwrap_or(0));
+    let hi = u32::from(data.get(bit / 8 + 1).copied().unwrap_or(0));
+    ((lo | hi << 8) >> (bit % 8)) & ((1 << width) - 1)
+}
+
+/// Write code `i` into a zeroed section in [`super::super::pack`]'s layout.
+#[inline(always)]
+pub(super) fn set_code(data: &mut [u8], width: u32, i: usize, code: u8) {
+    let bit = i * width as usize;
+    let v = u32::from(code) << (bit % 8);
+    if let Some(b) = data.get_mut(bit / 8) {
+        *b |= v as u8;
+    }
+    if let Some(b) = data.get_mut(bit / 8 + 1) {
+        *b |= (v >> 8) as u8;
+    }
+}
+
+/// An f32 that holds a whole number (a voxel's point count) as an integer, without a float operation.
+#[inline]
+pub(super) fn count_of(bits: u32) -> u32 {
+    let p = Parts::of_bits(bits);
+    shift(p.m, p.e)
+}
