@@ -10,7 +10,7 @@
 //!   cools down — its hot statistics merge into its codes (Chan's formula, exact) when another voxel needs
 //!   the hot entry. A voxel seen over several frames is re-encoded once per visit, not once per batch, and
 //!   the rounding error does not grow with the number of batches.
-//! - **int8 features** accumulate as exact integer sums and cool by the target's [`Cooling`]: in f32 where
+//! - **int8 features** accumulate as exact integer sums and cool by the target's [`crate::quant::Cooling`]: in f32 where
 //!   there is an FPU, in fixed point ([`crate::quant::Int8Fix`], no float operation) where there is none.
 //! - **Slots** hold the quantized statistics and a key stored as 3 × i16, wrapped around the window centre
 //!   (the window is far smaller than 2¹⁶ voxels, so the full key is recovered exactly).
@@ -35,7 +35,7 @@ use crate::config::{ConfigError, MapConfig, Prior};
 use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
 use crate::obs::ObsStats;
-use crate::quant::{Cooling, Dither, Int8Fix, QuantVoxel};
+use crate::quant::{Dither, Int8Fix, QuantVoxel};
 use crate::sink::EvictionSink;
 use nalgebra::Isometry3;
 
@@ -150,9 +150,9 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     int8_scale: f32,
     /// The same scale in the integer forms the fixed-point cooling of int8 sums uses.
     int8_fix: Int8Fix,
-    /// How int8 sums cool (a hosted build links both methods; bare metal only [`Cooling::NATIVE`]).
+    /// How int8 sums cool (a hosted build links both methods; bare metal only its target's).
     #[cfg(not(target_os = "none"))]
-    cooling: Cooling,
+    cooling: crate::quant::Cooling,
     dither: Dither,
     next_residency: u32,
     rejections: RejectionCounts,
@@ -196,7 +196,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         int8_scale: 0.0,
         int8_fix: Int8Fix::NONE,
         #[cfg(not(target_os = "none"))]
-        cooling: Cooling::NATIVE,
+        cooling: crate::quant::Cooling::NATIVE,
         dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {
