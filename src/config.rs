@@ -125,6 +125,8 @@ pub enum ConfigError {
     /// The scale of int8 features must be finite and > 0, and small enough that no feature exceeds
     /// [`crate::batch::FEATURE_LIMIT`].
     Int8Scale,
+    /// This build does not link the requested cooling method ([`crate::quant::Cooling::is_built`]).
+    Cooling,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -143,6 +145,7 @@ impl core::fmt::Display for ConfigError {
             Self::Int8Scale => {
                 "int8 feature scale must be finite, > 0 and at most FEATURE_LIMIT / (127 sqrt(D))"
             }
+            Self::Cooling => "this build does not link the requested cooling method",
         })
     }
 }

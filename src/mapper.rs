@@ -128,6 +128,9 @@ impl<
         self.map
             .configure(setup.map, setup.window_radius)
             .map_err(SetupError::Map)?;
+        self.map
+            .set_cooling(setup.cooling)
+            .map_err(SetupError::Map)?;
         if setup.int8_scale != 0.0 {
             self.map
                 .set_int8_scale(setup.int8_scale)

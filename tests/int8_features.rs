@@ -6,8 +6,9 @@ use latentbki::frame::{Feed, FrameDecoder};
 use latentbki::nalgebra::{Isometry3, Translation3};
 use latentbki::wire::{parse_body, Message, Summary};
 use latentbki::{
-    batch::Rejection, key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted,
-    sink::SinkFull, wire::SessionConfig, EncoderSettings, MapConfig, Mapper, Setup,
+    batch::Rejection, key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len,
+    quant::Cooling, sink::Evicted, sink::SinkFull, wire::SessionConfig, EncoderSettings, MapConfig,
+    Mapper, Setup,
 };
 
 const D: usize = 16;
@@ -233,39 +234,82 @@ fn bad_codes_and_scales_are_counted_never_stored() {
 #[test]
 fn a_long_visit_merges_its_sums_every_255_points_and_counts_each_point_once() {
     let (_, codes) = points(1000, 1);
-    let mut map = Box::new(LocalMap::<D, 64, P>::EMPTY);
-    map.configure(MapConfig::default(), 3.0).unwrap();
-    map.set_int8_scale(SCALE).unwrap();
-    let mut sink = Collect::default();
-    for c in &codes {
-        map.add_point_i8([0.05, 0.05, 0.05], c, &mut sink).unwrap();
-    }
-    assert_eq!(
-        map.counters().cooled,
-        3,
-        "merged at 255, 510 and 765 points"
-    );
-    let got = map.get(VoxelKey::new(0, 0, 0)).unwrap();
-    assert_eq!(got.count, 1000.0);
-    // Against the exact mean and scatter (f64): within one step of the stored 7-bit mean codes (scale
-    // max |μ| · 1.25 / 63) and of the scatter's minifloat codes (≤ 25 %).
-    let max_mean = (0..D)
-        .map(|d| (got.mean[d] as f64).abs())
-        .fold(0.0, f64::max);
-    let step = max_mean * 1.25 / 63.0 * 1.05;
-    for d in 0..D {
-        let ys: Vec<f64> = codes
-            .iter()
-            .map(|c| f64::from(c[d]) * f64::from(SCALE))
-            .collect();
-        let m = ys.iter().sum::<f64>() / 1000.0;
-        let s: f64 = ys.iter().map(|y| (y - m) * (y - m)).sum();
-        assert!((f64::from(got.mean[d]) - m).abs() <= step, "mean[{d}]");
-        assert!(
-            (f64::from(got.scatter[d]) / s - 1.0).abs() < 0.2,
-            "scatter[{d}]"
+    // A hosted build links both cooling methods (a bare-metal one only its target's) and cools in f32
+    // unless told otherwise; each method keeps the statistics within a code step of the exact ones.
+    assert_eq!(Cooling::NATIVE, Cooling::Float);
+    let mut held = Vec::new();
+    for cooling in [Cooling::Float, Cooling::Fixed] {
+        let mut map = Box::new(LocalMap::<D, 64, P>::EMPTY);
+        map.configure(MapConfig::default(), 3.0).unwrap();
+        assert_eq!(map.cooling(), Cooling::NATIVE);
+        map.set_cooling(cooling).unwrap();
+        map.set_int8_scale(SCALE).unwrap();
+        let mut sink = Collect::default();
+        for c in &codes {
+            map.add_point_i8([0.05, 0.05, 0.05], c, &mut sink).unwrap();
+        }
+        assert_eq!(
+            map.counters().cooled,
+            3,
+            "{cooling:?}: merged at 255, 510 and 765 points"
         );
+        let got = map.get(VoxelKey::new(0, 0, 0)).unwrap();
+        assert_eq!(got.count, 1000.0);
+        // Against the exact mean and scatter (f64): within one step of the stored 7-bit mean codes (scale
+        // max |μ| · 1.25 / 63) and of the scatter's minifloat codes (≤ 25 %).
+        let max_mean = (0..D)
+            .map(|d| (got.mean[d] as f64).abs())
+            .fold(0.0, f64::max);
+        let step = max_mean * 1.25 / 63.0 * 1.05;
+        for d in 0..D {
+            let ys: Vec<f64> = codes
+                .iter()
+                .map(|c| f64::from(c[d]) * f64::from(SCALE))
+                .collect();
+            let m = ys.iter().sum::<f64>() / 1000.0;
+            let s: f64 = ys.iter().map(|y| (y - m) * (y - m)).sum();
+            assert!(
+                (f64::from(got.mean[d]) - m).abs() <= step,
+                "{cooling:?}: mean[{d}]"
+            );
+            assert!(
+                (f64::from(got.scatter[d]) / s - 1.0).abs() < 0.2,
+                "{cooling:?}: scatter[{d}]"
+            );
+        }
+        held.push(got);
     }
+    // The last cooling's sums differ by less than a code step here: the same codes.
+    assert_eq!(held[0].count, held[1].count);
+}
+
+#[test]
+fn the_cooling_method_is_the_one_chosen() {
+    // 24 voxels through 4 hot entries: hundreds of coolings of int8 sums into earlier codes.
+    let (pts, codes) = points(3000, 24);
+    let pose = Isometry3::identity();
+    let evicted = |cooling| {
+        let mut map = Box::new(LocalMap::<D, 64, P, 4>::EMPTY);
+        map.configure(MapConfig::default(), 3.0).unwrap();
+        map.set_cooling(cooling).unwrap();
+        map.set_int8_scale(SCALE).unwrap();
+        let mut sink = Collect::default();
+        assert_eq!(map.add_points_i8(&pose, &pts, &codes, &mut sink), 3000);
+        assert!(map.counters().cooled > 500, "{}", map.counters().cooled);
+        map.flush(&mut sink).unwrap();
+        sink.0
+    };
+    let (float, fixed) = (evicted(Cooling::Float), evicted(Cooling::Fixed));
+    assert_eq!(float.len(), 24);
+    // The same voxels and counts; the codes round differently (the fixed-point merge matches the f32 one
+    // to the rounding of the last code step), so some voxel's statistics differ.
+    for ((ka, a), (kb, b)) in float.iter().zip(&fixed) {
+        assert_eq!((ka, a.count), (kb, b.count));
+    }
+    assert!(float
+        .iter()
+        .zip(&fixed)
+        .any(|((_, a), (_, b))| (a.mean, a.scatter) != (b.mean, b.scatter)));
 }
 
 #[test]

@@ -3,7 +3,8 @@
 //! (`boards/qemu-mps2-an386`, thumbv7em), on the Cortex-M0 instruction set (`boards/qemu-mps2-an385`,
 //! thumbv6m: soft float) and on RISC-V (`boards/qemu-riscv32-virt`, riscv32imac); the host twin runs the same
 //! core code (`latentbki_selftest::run` on the same `Mapper`, scenarios, map capacity, encoder sizes and
-//! seeds) and every target must produce the same bytes. Both streams are decoded (COBS + CRC frames, wire
+//! seeds, cooling int8 sums by the board's method: f32 on the M4F, fixed point on the two without an FPU)
+//! and every target must produce the same bytes as its twin. Both streams are decoded (COBS + CRC frames, wire
 //! summaries) into global maps that must be equal, non-trivial and semantically right (voxels decode to the
 //! category of the surface they lie on).
 //!
@@ -16,7 +17,7 @@
 use latentbki::frame::FrameDecoder;
 use latentbki::key::{to_map_frame, VoxelKey};
 use latentbki::obs::ObsStats;
-use latentbki::quant::packed_len;
+use latentbki::quant::{packed_len, Cooling};
 use latentbki::wire::{parse_body, Message, SessionConfig};
 use latentbki::Mapper;
 use latentbki_selftest::{
@@ -39,6 +40,8 @@ struct Board {
     qemu: &'static str,
     /// Environment variable naming a prebuilt ELF.
     elf_var: &'static str,
+    /// How its firmware cools int8 sums (its target's [`Cooling::NATIVE`]): the twin cools the same way.
+    cooling: Cooling,
 }
 
 const AN386: Board = Board {
@@ -46,18 +49,21 @@ const AN386: Board = Board {
     target: "thumbv7em-none-eabihf",
     qemu: "qemu-system-arm",
     elf_var: "LATENTBKI_FIRMWARE_ELF",
+    cooling: Cooling::Float,
 };
 const AN385: Board = Board {
     dir: "qemu-mps2-an385",
     target: "thumbv6m-none-eabi",
     qemu: "qemu-system-arm",
     elf_var: "LATENTBKI_FIRMWARE_ELF_AN385",
+    cooling: Cooling::Fixed,
 };
 const RISCV32_VIRT: Board = Board {
     dir: "qemu-riscv32-virt",
     target: "riscv32imac-unknown-none-elf",
     qemu: "qemu-system-riscv32",
     elf_var: "LATENTBKI_FIRMWARE_ELF_RISCV32",
+    cooling: Cooling::Fixed,
 };
 
 impl Board {
@@ -134,7 +140,7 @@ struct Twin {
     truth: Vec<BTreeMap<VoxelKey, [u32; CATEGORIES]>>,
 }
 
-fn twin() -> Twin {
+fn twin(cooling: Cooling) -> Twin {
     // One mapper for all scenarios, reconfigured in place as the firmware does with its static.
     let mut mapper: Box<Robot> = Box::new(Robot::EMPTY);
     let mut chunk = Box::new(Chunk::<D, 16>::ZERO);
@@ -144,7 +150,7 @@ fn twin() -> Twin {
     let mut reports = Vec::new();
     let mut truth = Vec::new();
     for scenario in &SELF_TEST {
-        scenario.configure(&mut mapper).unwrap();
+        scenario.configure_cooling(&mut mapper, cooling).unwrap();
         let r = selftest::run(
             scenario,
             &mut mapper,
@@ -261,7 +267,7 @@ fn streams_the_map_the_host_twin_computes(board: &Board) {
     }
     let elf = board.firmware_elf();
     let (uart, stdout) = run_firmware(board, &elf);
-    let twin = twin();
+    let twin = twin(board.cooling);
 
     // The firmware's own report agrees with the twin's, scenario by scenario.
     for (s, r) in twin.reports.iter().enumerate() {

@@ -12,8 +12,8 @@ use host_sim::sim::tile::Tile;
 use host_sim::ObsMap;
 use latentbki::nalgebra::Isometry3;
 use latentbki::{
-    decode::Codebook, key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted,
-    sink::SinkFull, MapConfig,
+    decode::Codebook, key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len,
+    quant::Cooling, sink::Evicted, sink::SinkFull, MapConfig,
 };
 use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -60,8 +60,9 @@ fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
 }
 
 /// `int8_scale`: the device map takes the features as int8 codes of this scale (rounded, clamped to ±127);
-/// the reference keeps the f32 features.
-fn run(prior_psi: f32, int8_scale: Option<f32>) {
+/// the reference keeps the f32 features; `cooling`: how it cools their sums (what a board with / without an
+/// FPU does).
+fn run(prior_psi: f32, int8_scale: Option<f32>, cooling: Cooling) {
     let tile = Tile::builtin().unwrap();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
     let classes = class_embeddings(6, &mut rng);
@@ -75,6 +76,7 @@ fn run(prior_psi: f32, int8_scale: Option<f32>) {
     let mut reference = ObsMap::<D>::new(config).unwrap();
     let mut local = Box::new(LocalMap::<D, CAP, P>::EMPTY);
     local.configure(config, 8.0).unwrap();
+    local.set_cooling(cooling).unwrap();
     if let Some(scale) = int8_scale {
         local.set_int8_scale(scale).unwrap();
     }
@@ -201,18 +203,24 @@ fn on_big_stack(f: impl FnOnce() + Send + 'static) {
 /// The default prior (Ψ₀ = 1, the authors'): the prior weighs on the scatter of unit-norm features.
 #[test]
 fn quantized_map_matches_reference_on_the_real_tile() {
-    on_big_stack(|| run(1.0, None));
+    on_big_stack(|| run(1.0, None, Cooling::NATIVE));
 }
 
 /// A weak prior (Ψ₀ = 10⁻³): Ψ is the observed scatter — the hard case for the scatter codes.
 #[test]
 fn quantized_map_matches_reference_with_a_weak_prior() {
-    on_big_stack(|| run(1e-3, None));
+    on_big_stack(|| run(1e-3, None, Cooling::NATIVE));
 }
 
 /// int8 features (one global scale: the features are within ±1, so 1/127), against the f32 reference of
-/// the same features unquantized.
+/// the same features unquantized, their sums cooled in f32 (an FPU's way).
 #[test]
 fn int8_features_match_the_f32_reference() {
-    on_big_stack(|| run(1.0, Some(1.0 / 127.0)));
+    on_big_stack(|| run(1.0, Some(1.0 / 127.0), Cooling::Float));
+}
+
+/// The same, cooled in fixed point (the way of thumbv6m and riscv32imac): the same bounds.
+#[test]
+fn int8_features_cooled_in_fixed_point_match_the_f32_reference() {
+    on_big_stack(|| run(1.0, Some(1.0 / 127.0), Cooling::Fixed));
 }

@@ -8,6 +8,7 @@ use latentbki::config::{ConfigError, KernelMode, MapConfig, Prior};
 use latentbki::frame::{EncoderSettings, Resend};
 use latentbki::local_map::{Counters, LocalMap};
 use latentbki::mapper::{DrainError, Mapper, Setup, SetupError};
+use latentbki::quant::Cooling;
 use latentbki::wire::LinkStats;
 
 /// Brackets the map's work inside [`integrate_frame`] (the firmware counts instructions between the two
@@ -269,7 +270,8 @@ impl Scenario {
         })
     }
 
-    /// Clear `mapper` and configure it for this scenario (in place).
+    /// Clear `mapper` and configure it for this scenario (in place), cooling int8 sums by this build's
+    /// method ([`Cooling::NATIVE`]: what a firmware does).
     pub fn configure<
         const D: usize,
         const CAP: usize,
@@ -281,7 +283,24 @@ impl Scenario {
         &self,
         mapper: &mut Mapper<D, CAP, P, QB, N, H>,
     ) -> Result<(), SetupError> {
-        mapper.configure(&self.setup().map_err(SetupError::Map)?)
+        self.configure_cooling(mapper, Cooling::NATIVE)
+    }
+
+    /// [`Self::configure`] cooling int8 sums by `cooling`: a host twin passes its board's method.
+    pub fn configure_cooling<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+    >(
+        &self,
+        mapper: &mut Mapper<D, CAP, P, QB, N, H>,
+        cooling: Cooling,
+    ) -> Result<(), SetupError> {
+        let setup = self.setup().map_err(SetupError::Map)?;
+        mapper.configure(&setup.with_cooling(cooling))
     }
 }
 

@@ -5,6 +5,7 @@
 use super::{Hot, LocalMap, CHANGED, REFERENCED};
 use crate::key::VoxelKey;
 use crate::obs::{CodeSums, ObsStats};
+use crate::quant::Cooling;
 
 /// A hot voxel's new points: f32 features by Welford's update, int8 codes as exact integer sums (the
 /// first point decides; a point of the other kind turns the sums into f32 statistics first).
@@ -82,6 +83,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// Merge hot entry `h` into its slot's codes (one decode, one exact merge, one encode) and mark the slot
     /// cold. The entry itself is left for the caller to reuse or remove.
     pub(super) fn cool(&mut self, h: usize) {
+        let fixed = self.cooling() == Cooling::Fixed;
         let Some(hot) = self.hot.get(h) else { return };
         let s = usize::from(hot.slot);
         let Some(slot) = self.slots.get_mut(s) else {
@@ -90,8 +92,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge).
             (Acc::Float(o), false) => slot.codes = slot.codes.reencode(o, &mut self.dither),
-            // int8 sums merge into the codes in fixed point: no float operation (an MCU without an FPU).
-            (Acc::Codes(c), _) => {
+            // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
+            // operation. Otherwise they merge in f32 below.
+            (Acc::Codes(c), _) if fixed => {
                 slot.codes = slot
                     .codes
                     .merge_codes_fixed(c, &self.int8_fix, &mut self.dither)

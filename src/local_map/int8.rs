@@ -1,12 +1,12 @@
 //! int8 features: a scale declared once, codes checked four at a time, exact integer sums per hot voxel
-//! (no float operation per point; cooling in fixed point, `crate::quant::fixed`).
+//! (no float operation per point; cooling by the target's [`Cooling`]: fixed point without an FPU).
 
 use super::LocalMap;
 use crate::batch::{locate_key, Rejection};
 use crate::config::ConfigError;
 use crate::key::VoxelKey;
 use crate::obs::code_in_range;
-use crate::quant::Int8Fix;
+use crate::quant::{Cooling, Int8Fix};
 use crate::sink::EvictionSink;
 use nalgebra::Isometry3;
 
@@ -26,7 +26,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             e.acc.make_float(old);
         }
         self.int8_scale = if scale_ok { scale } else { 0.0 };
-        self.int8_fix = if scale_ok {
+        self.int8_fix = if scale_ok && Cooling::Fixed.is_built() {
             Int8Fix::new(scale)
         } else {
             Int8Fix::NONE
@@ -36,6 +36,29 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         } else {
             Err(ConfigError::Int8Scale)
         }
+    }
+
+    /// Cool int8 sums by `cooling` from now on (default [`Cooling::NATIVE`]; [`Self::configure`] keeps it).
+    /// A bare-metal build links only its native method and refuses the other ([`ConfigError::Cooling`]);
+    /// a hosted one takes either, so a host twin computes exactly what a given board does.
+    pub fn set_cooling(&mut self, cooling: Cooling) -> Result<(), ConfigError> {
+        if !cooling.is_built() {
+            return Err(ConfigError::Cooling);
+        }
+        #[cfg(not(target_os = "none"))]
+        {
+            self.cooling = cooling;
+        }
+        Ok(())
+    }
+
+    /// How int8 sums cool: a constant on bare metal, so the other method is not linked.
+    #[inline]
+    pub fn cooling(&self) -> Cooling {
+        #[cfg(not(target_os = "none"))]
+        return self.cooling;
+        #[cfg(target_os = "none")]
+        return Cooling::NATIVE;
     }
 
     /// The int8 feature scale (0 when none is set).

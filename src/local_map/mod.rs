@@ -10,8 +10,8 @@
 //!   cools down — its hot statistics merge into its codes (Chan's formula, exact) when another voxel needs
 //!   the hot entry. A voxel seen over several frames is re-encoded once per visit, not once per batch, and
 //!   the rounding error does not grow with the number of batches.
-//! - **int8 features** accumulate as exact integer sums and cool in fixed point ([`crate::quant::Int8Fix`]):
-//!   no float operation on their path, for an MCU without an FPU.
+//! - **int8 features** accumulate as exact integer sums and cool by the target's [`crate::quant::Cooling`]: in f32 where
+//!   there is an FPU, in fixed point ([`crate::quant::Int8Fix`], no float operation) where there is none.
 //! - **Slots** hold the quantized statistics and a key stored as 3 × i16, wrapped around the window centre
 //!   (the window is far smaller than 2¹⁶ voxels, so the full key is recovered exactly).
 //! - **Index**: open addressing with linear probing over 2·CAP u16 entries (slot + 1, 0 = empty): O(1)
@@ -150,6 +150,9 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     int8_scale: f32,
     /// The same scale in the integer forms the fixed-point cooling of int8 sums uses.
     int8_fix: Int8Fix,
+    /// How int8 sums cool (a hosted build links both methods; bare metal only its target's).
+    #[cfg(not(target_os = "none"))]
+    cooling: crate::quant::Cooling,
     dither: Dither,
     next_residency: u32,
     rejections: RejectionCounts,
@@ -192,6 +195,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         radius: 0,
         int8_scale: 0.0,
         int8_fix: Int8Fix::NONE,
+        #[cfg(not(target_os = "none"))]
+        cooling: crate::quant::Cooling::NATIVE,
         dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {

@@ -2,6 +2,7 @@
 
 use crate::config::{ConfigError, MapConfig};
 use crate::frame::EncoderSettings;
+use crate::quant::Cooling;
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 
 /// Everything a [`Mapper`](super::Mapper) is configured with; `const`-constructible, so a firmware keeps it in a `static`.
@@ -29,6 +30,8 @@ pub struct Setup {
     /// Scale of int8 features (a code c is the feature value `int8_scale` · c); 0 = the robot gives f32
     /// features only. Sent in the session header.
     pub int8_scale: f32,
+    /// How the map cools int8 sums ([`Cooling::NATIVE`] unless a host twin asks for a board's method).
+    pub cooling: Cooling,
 }
 
 impl Setup {
@@ -41,6 +44,7 @@ impl Setup {
             codec: SummaryCodec::DEFAULT,
             feature_space: NO_FEATURE_SPACE,
             int8_scale: 0.0,
+            cooling: Cooling::NATIVE,
         }
     }
 
@@ -51,6 +55,11 @@ impl Setup {
             int8_scale: scale,
             ..self
         }
+    }
+
+    /// The same setup cooling int8 sums by `cooling` (a hosted build takes either; bare metal its native).
+    pub const fn with_cooling(self, cooling: Cooling) -> Self {
+        Self { cooling, ..self }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.

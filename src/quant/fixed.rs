@@ -11,12 +11,13 @@
 //! reads. The codes equal the f32 path's to the rounding of the last code step (tests: within 1.3 mean
 //! steps and 25 % of scatter on 400 merges; 600 coolings of one voxel walk no farther than the f32 path's).
 //!
-//! Every target cools int8 sums this way (the QEMU boards' UART streams are compared with one host twin, so
-//! all must compute the same codes). Measured with `boards/measure.sh` (depth frames, f = 3, i8 features,
-//! instructions per point): riscv32imac 3,393 → 1,824, thumbv6m 5,111 → 2,521, but the Cortex-M4F
-//! 1,004 → 1,312 — its FPU runs the f32 cooling in fewer instructions than these integer passes (≈ 150
-//! per dimension). The per-dimension helpers are inlined where there is an FPU and kept out of line without
-//! one (flash: riscv32imac stays under 64 KiB); on v6-M the 64-bit products are built from 16-bit halves.
+//! Only the targets without an FPU cool int8 sums this way ([`super::Cooling::NATIVE`]; a hosted build
+//! links both, so the QEMU boards' host twins compute what each board does). Measured with
+//! `boards/measure.sh` (depth frames, f = 3, i8 features, instructions per point): riscv32imac 3,393 →
+//! 1,824, thumbv6m 5,111 → 2,521, but the Cortex-M4F 1,004 → 1,312 — its FPU runs the f32 cooling in fewer
+//! instructions than these integer passes (≈ 150 per dimension), so it keeps the f32 cooling (1,015). The
+//! per-dimension helpers are kept out of line (flash: riscv32imac stays under 64 KiB); on v6-M the 64-bit
+//! products are built from 16-bit halves.
 
 use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
 use crate::obs::{scatter_numerator, CodeSums};

@@ -17,7 +17,9 @@
 use crate::obs::ObsStats;
 use half::f16;
 
+mod cooling;
 mod fixed;
+pub use cooling::Cooling;
 pub use fixed::Int8Fix;
 
 // Widths measured on the 400-frame tile run (host-sim/tests/local_map_accuracy.rs: μ RMS, Ψ p95 with the
