@@ -75,23 +75,10 @@ impl Int8Fix {
     }
 }
 
+inline_with_fpu! {
 /// One dimension's merged mean and the distance between the two means (both in code steps with
 /// [`MEAN_FRAC`] fraction bits), from the old mean code `q` on scale `sigma` (steps) and the sums' Σc: with
 /// x = Σc − n₁m₀ the merged mean is m₀ + x/n and d = x/n₁ (`rn`, `rn1`: 2³²/n, 2³²/n₁).
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
 fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: u32, rn1: u32) -> (i32, i32) {
     let q = (q as i32) << (32 - MU_BITS) >> (32 - MU_BITS);
     let m0 = q.wrapping_mul(sigma);
@@ -101,24 +88,12 @@ fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: u32, rn1: u32) -> (i32
         ((mul32s(x, rn1) + (1 << 31)) >> 32) as i32,
     )
 }
+}
 
+inline_with_fpu! {
 /// One dimension's codes: μ = m/σ by the reciprocal `r_sigma` (2³²/σ) to 1/256 of a step, plus a dither
 /// below one step, floored (stochastic rounding); Ψ the minifloat key of `bits` less the voxel's `base`.
 /// Bytes 0 and 1 of `dither` serve μ and Ψ, as in [`QuantVoxel::reencode`].
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
 fn codes_of(m: i32, r_sigma: u32, bits: u32, base: i32, dither: u32) -> (u8, u8) {
     let u = ((mul32s(m, r_sigma) + (1 << 23)) >> 24) as i32;
     let q = (u + (dither & 0xFF) as i32) >> 8;
@@ -126,6 +101,7 @@ fn codes_of(m: i32, r_sigma: u32, bits: u32, base: i32, dither: u32) -> (u8, u8)
     let psi = (psi_key(f32::from_bits(bits), (dither >> 8) as u8) as i32 - base)
         .clamp(0, PSI_CODE_MAX as i32) as u8;
     (mu, psi)
+}
 }
 
 /// What one dimension's scatter merge needs from its voxel (see [`QuantVoxel::merge_codes_fixed`]).
@@ -143,23 +119,10 @@ struct ScatterUnits {
     r1: u32,
 }
 
+inline_with_fpu! {
 /// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `k` the
 /// old minifloat code (with its base), `d` the distance of the means (MEAN_FRAC fraction bits), `numer`
 /// the sums' n₁Σc² − (Σc)². Not inlined: one copy of the body keeps the loop small.
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
 fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
     let g = u.g;
     // The old scatter's minifloat: exponent k/4, mantissa 1 + (k%4)/4.
@@ -195,6 +158,7 @@ fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
     } else {
         ((biased as u32) << 23) | (mant & 0x7F_FFFF)
     }
+}
 }
 
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {

@@ -17,6 +17,29 @@
 use crate::obs::ObsStats;
 use half::f16;
 
+/// Wraps a function that is inlined where an FPU makes the f32 path the fast one, and kept as one
+/// out-of-line copy on an MCU without one (thumbv6m's `eabi`, riscv32 without F), where flash is the scarce
+/// thing and the call costs little next to the soft-float work around it.
+macro_rules! inline_with_fpu {
+    ($item:item) => {
+        #[cfg_attr(
+            any(
+                target_abi = "eabi",
+                all(target_arch = "riscv32", not(target_feature = "f"))
+            ),
+            inline(never)
+        )]
+        #[cfg_attr(
+            not(any(
+                target_abi = "eabi",
+                all(target_arch = "riscv32", not(target_feature = "f"))
+            )),
+            inline
+        )]
+        $item
+    };
+}
+
 mod cooling;
 mod fixed;
 pub use cooling::Cooling;
@@ -98,24 +121,11 @@ fn max_magnitude_bits(values: &[f32]) -> u32 {
     m.min(f32::MAX.to_bits())
 }
 
+inline_with_fpu! {
 /// Pack `width`-bit codes, 8 at a time into `width` bytes (independent shifts, no carried state). Inlined
 /// where an FPU makes the f32 path fast (its cost is then ≈ 100 instructions per point on the Cortex-M4F);
 /// one out-of-line copy on an MCU without one, where the f32 path is soft float anyway (≈ 1.3 KB less
 /// flash).
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
 fn pack(codes: &[u8], width: u32, out: &mut [u8]) {
     let w = width as usize;
     for (chunk, dst) in codes.chunks(8).zip(out.chunks_mut(w)) {
@@ -128,22 +138,10 @@ fn pack(codes: &[u8], width: u32, out: &mut [u8]) {
         }
     }
 }
+}
 
+inline_with_fpu! {
 /// Unpack what [`pack`] wrote (inlined or not as [`pack`]).
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
 fn unpack(data: &[u8], width: u32, codes: &mut [u8]) {
     let w = width as usize;
     let mask = (1u64 << width) - 1;
@@ -157,6 +155,7 @@ fn unpack(data: &[u8], width: u32, codes: &mut [u8]) {
             *c = ((acc >> (i * w)) & mask) as u8;
         }
     }
+}
 }
 
 /// The minifloat key of a positive finite f32: exponent and top mantissa bits, monotone in the value.

@@ -25,23 +25,11 @@ impl Parts {
     }
 }
 
+inline_with_fpu! {
 /// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
 pub(super) fn lz(v: u32) -> u32 {
     v.leading_zeros()
+}
 }
 
 /// a · b, 32 × 32 → 64 bits. v6-M has no long multiply (`umull`): there a 64-bit product is a call to
@@ -80,22 +68,9 @@ pub(super) fn mul32s(a: i32, b: u32) -> i64 {
     }
 }
 
+inline_with_fpu! {
 /// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
 /// 64-bit shift is long on a 32-bit MCU.)
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
 pub(super) fn shift(p: u32, sh: i32) -> u32 {
     if p == 0 {
         0
@@ -114,22 +89,10 @@ pub(super) fn shift(p: u32, sh: i32) -> u32 {
         }
     }
 }
+}
 
+inline_with_fpu! {
 /// The f32 bit pattern of `v · 2^e` (v > 0), mantissa truncated; 0 if it underflows, f32::MAX if too big.
-#[cfg_attr(
-    any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    ),
-    inline(never)
-)]
-#[cfg_attr(
-    not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )),
-    inline
-)]
 pub(super) fn f32_bits(v: u32, e: i32) -> u32 {
     if v == 0 {
         return 0;
@@ -145,6 +108,7 @@ pub(super) fn f32_bits(v: u32, e: i32) -> u32 {
     } else {
         ((biased as u32) << 23) | (mant & 0x7F_FFFF)
     }
+}
 }
 
 /// The top 16 bits of `v` > 0 and the power of two they stand for: v ≈ t · 2^e with t in [2¹⁵, 2¹⁶).
