@@ -106,24 +106,6 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.rejections.count(r);
     }
 
-    /// Run one point's intake: count it as taken or refused.
-    #[inline]
-    fn counted(
-        &mut self,
-        take: impl FnOnce(&mut Self) -> Result<(), Rejection>,
-    ) -> Result<(), Rejection> {
-        match take(self) {
-            Ok(()) => {
-                self.counters.points = self.counters.points.wrapping_add(1);
-                Ok(())
-            }
-            Err(r) => {
-                self.rejections.count(r);
-                Err(r)
-            }
-        }
-    }
-
     fn take_point_i8<S: EvictionSink<D>>(
         &mut self,
         position: [f32; 3],

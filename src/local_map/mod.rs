@@ -346,7 +346,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         feature: &[f32; D],
         sink: &mut S,
     ) -> Result<(), Rejection> {
-        match self.take_point(position, feature, sink) {
+        self.counted(|m| m.take_point(position, feature, sink))
+    }
+
+    /// Run one point's intake: count it as taken or refused.
+    #[inline]
+    fn counted(
+        &mut self,
+        take: impl FnOnce(&mut Self) -> Result<(), Rejection>,
+    ) -> Result<(), Rejection> {
+        match take(self) {
             Ok(()) => {
                 self.counters.points = self.counters.points.wrapping_add(1);
                 Ok(())
