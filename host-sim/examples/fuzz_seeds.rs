@@ -133,6 +133,7 @@ fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize) -> Vec<u8> {
                 key,
                 obs: &obs,
                 residency: i as u32,
+                time: 0,
             })
             .is_err()
         {
@@ -143,6 +144,7 @@ fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize) -> Vec<u8> {
                 key: *key,
                 obs,
                 residency: 0,
+                time: 0,
             });
             enc.tick(&mut out, 600, live_now).unwrap();
         }

@@ -1,6 +1,7 @@
 //! What a [`Mapper`](super::Mapper) is configured with (a `const` [`Setup`]) and why it refuses one.
 
 use crate::config::{ConfigError, MapConfig};
+use crate::forget::Forgetting;
 use crate::frame::EncoderSettings;
 use crate::quant::Cooling;
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
@@ -32,6 +33,9 @@ pub struct Setup {
     pub int8_scale: f32,
     /// How the map cools int8 sums ([`Cooling::NATIVE`] unless a host twin asks for a board's method).
     pub cooling: Cooling,
+    /// How the map forgets ([`crate::forget`]; `None`, the default: never). Needs a mapper with the
+    /// [`crate::forget::Fading`] clock; sent in the session header.
+    pub forgetting: Option<Forgetting>,
 }
 
 impl Setup {
@@ -45,7 +49,13 @@ impl Setup {
             feature_space: NO_FEATURE_SPACE,
             int8_scale: 0.0,
             cooling: Cooling::NATIVE,
+            forgetting: None,
         }
+    }
+
+    /// The same setup forgetting with `forgetting` (a mapper with the [`crate::forget::Fading`] clock).
+    pub const fn with_forgetting(self, forgetting: Option<Forgetting>) -> Self {
+        Self { forgetting, ..self }
     }
 
     /// The same setup for a robot whose features are int8 codes: c stands for `scale` · c (e.g. an NPU's

@@ -60,6 +60,7 @@ fuzz_target!(|data: &[u8]| {
                 key,
                 obs: &stats,
                 residency: i as u32,
+                time: 0,
             })
             .is_err()
         {

@@ -109,7 +109,10 @@ impl<const D: usize> LiveItem<D> for Evicted<'_, D> {
 
 impl<const D: usize> LiveItem<D> for LiveVoxel<D> {
     fn voxel(&self) -> Evicted<'_, D> {
-        live(self.key, &self.obs, self.residency)
+        Evicted {
+            time: self.time,
+            ..live(self.key, &self.obs, self.residency)
+        }
     }
 }
 
@@ -119,5 +122,6 @@ pub fn live<const D: usize>(key: VoxelKey, obs: &ObsStats<D>, residency: u32) ->
         key,
         obs,
         residency,
+        time: 0,
     }
 }
