@@ -358,5 +358,8 @@ impl<
 #[cfg(test)]
 mod link_tests;
 
+#[cfg(all(test, feature = "forgetting"))]
+mod forget_tests;
+
 #[cfg(test)]
 mod tests;

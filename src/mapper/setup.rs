@@ -76,6 +76,7 @@ impl Setup {
     pub fn session(&self, dim: usize) -> SessionConfig {
         SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
             .with_int8_scale(self.int8_scale)
+            .with_forgetting(self.forgetting)
     }
 }
 

@@ -185,6 +185,7 @@ const NO_SESSION: SessionConfig = SessionConfig {
     },
     feature_space: 0,
     int8_scale: 0.0,
+    half_life: 0.0,
 };
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
@@ -250,13 +251,19 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.now = 0;
         self.resent_bytes = 0;
         config.validate(D)?;
+        #[cfg(not(feature = "forgetting"))]
+        if config.half_life > 0.0 {
+            return Err(WireError::BadConfig); // built without the stamped summaries forgetting needs
+        }
         let resend = settings.resend.bytes as usize;
         if settings.resend.is_on() && (resend > QB || resend < N + 11) {
             return Err(WireError::BufferFull);
         }
-        let entry_len = ENTRY_HEAD + config.codec.code_len(D);
+        self.config = config;
+        let entry_len = ENTRY_HEAD + self.stamp_len() + config.codec.code_len(D);
         let capacity = (QB - resend).checked_div(entry_len).unwrap_or(0);
-        let one = wire_len(VOXEL_FRAME_OVERHEAD + config.codec.max_summary_len(D));
+        let one = wire_len(VOXEL_FRAME_OVERHEAD + self.max_summary_len());
+        self.config = NO_SESSION;
         if capacity == 0 || one > N || wire_len(64) > N {
             return Err(WireError::BufferFull);
         }
@@ -266,6 +273,16 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.entry_len = entry_len;
         self.capacity = capacity;
         Ok(())
+    }
+
+    /// Largest wire size of one summary of the session (a stamped one is [`queue::STAMP_EXTRA`] longer).
+    pub(super) fn max_summary_len(&self) -> usize {
+        let len = self.config.codec.max_summary_len(D);
+        #[cfg(feature = "forgetting")]
+        if self.stamped() {
+            return len + queue::STAMP_EXTRA;
+        }
+        len
     }
 
     /// End the session: queued voxels are dropped, nothing is sent and every voxel is refused until the
