@@ -137,6 +137,12 @@ impl<
         self.map
             .set_forgetting(setup.forgetting)
             .map_err(SetupError::Map)?;
+        // Built without the `forgetting` feature, the link cannot carry stamps: a map that forgets would
+        // send statistics no summary can hold.
+        #[cfg(not(feature = "forgetting"))]
+        if setup.forgetting.is_some() {
+            return Err(SetupError::Link(crate::wire::WireError::BadConfig));
+        }
         if setup.int8_scale != 0.0 {
             self.map
                 .set_int8_scale(setup.int8_scale)

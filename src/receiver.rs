@@ -330,7 +330,7 @@ impl<const D: usize, const N: usize> Receiver<D, N> {
         }
         if let Message::Voxels(batch) = message {
             // A session that forgets sends stamped summaries only, one that does not never does.
-            let forgets = config.half_life > 0.0;
+            let forgets = config.forgetting().is_some();
             if batch
                 .iter::<D>(config.codec)
                 .any(|s| s.map_or(true, |s| s.time.is_some() != forgets))

@@ -74,9 +74,12 @@ impl Setup {
 
     /// The session configuration a `dim`-dimensional map sends in its header.
     pub fn session(&self, dim: usize) -> SessionConfig {
-        SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
-            .with_int8_scale(self.int8_scale)
-            .with_forgetting(self.forgetting)
+        let session = SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
+            .with_int8_scale(self.int8_scale);
+        #[cfg(feature = "forgetting")]
+        return session.with_forgetting(self.forgetting);
+        #[cfg(not(feature = "forgetting"))]
+        return session;
     }
 }
 

@@ -40,7 +40,9 @@ pub struct SessionConfig {
     pub int8_scale: f32,
     /// Half-life of the robot's map in mission-clock ticks when it forgets ([`crate::forget`]), 0 when it
     /// does not. Not a postcard field: it travels as the session message's 4-byte extension, present only
-    /// when > 0 ([`encode_body`]), so a session that does not forget sends the same bytes as before.
+    /// when > 0 ([`encode_body`]), so a session that does not forget sends the same bytes as before. (Only
+    /// with the `forgetting` feature: a firmware built without it carries none of this.)
+    #[cfg(feature = "forgetting")]
     #[serde(skip)]
     pub half_life: f32,
 }
@@ -64,11 +66,13 @@ impl SessionConfig {
             codec,
             feature_space,
             int8_scale: 0.0,
+            #[cfg(feature = "forgetting")]
             half_life: 0.0,
         }
     }
 
     /// The same configuration for a map that forgets with `forgetting` (`None`: does not).
+    #[cfg(feature = "forgetting")]
     pub fn with_forgetting(self, forgetting: Option<crate::forget::Forgetting>) -> Self {
         Self {
             half_life: forgetting.map_or(0.0, |f| f.half_life()),
@@ -78,7 +82,10 @@ impl SessionConfig {
 
     /// How the session's maps forget (`None`: they do not; their summaries are unstamped).
     pub fn forgetting(&self) -> Option<crate::forget::Forgetting> {
-        crate::forget::Forgetting::new(self.half_life)
+        #[cfg(feature = "forgetting")]
+        return crate::forget::Forgetting::new(self.half_life);
+        #[cfg(not(feature = "forgetting"))]
+        return None;
     }
 
     /// The same configuration for a robot whose features are int8 codes of `scale`
@@ -117,6 +124,7 @@ impl SessionConfig {
         if !(self.int8_scale >= 0.0 && self.int8_scale.is_finite()) {
             return Err(WireError::BadConfig);
         }
+        #[cfg(feature = "forgetting")]
         if !(self.half_life >= 0.0 && self.half_life.is_finite()) {
             return Err(WireError::BadConfig);
         }
@@ -128,6 +136,7 @@ impl SessionConfig {
     pub fn id(&self) -> u32 {
         let mut buf = [0u8; 64];
         match postcard::to_slice(self, &mut buf) {
+            #[cfg(feature = "forgetting")]
             Ok(bytes) if self.half_life > 0.0 => {
                 let mut digest = CRC32.digest();
                 digest.update(bytes);
@@ -270,10 +279,12 @@ pub fn parse_body(body: &[u8]) -> Result<(FrameHeader, Message<'_>), WireError> 
         _ => WireError::Malformed,
     };
     let (header, rest) = postcard::take_from_bytes::<FrameHeader>(body).map_err(map)?;
+    #[allow(unused_mut)] // the half-life extension is read only with forgetting
     let (mut message, rest) = postcard::take_from_bytes::<Message<'_>>(rest).map_err(map)?;
     match (&mut message, rest) {
         (_, []) => {}
         // The half-life extension: only after a session message, and only > 0 (0 is sent as no bytes).
+        #[cfg(feature = "forgetting")]
         (Message::Session(c), &[a, b, c2, d]) => {
             c.half_life = f32::from_le_bytes([a, b, c2, d]);
             if !(c.half_life > 0.0) {

@@ -7,7 +7,7 @@ use crate::key::VoxelKey;
 use crate::local_map::LiveVoxel;
 use crate::obs::ObsStats;
 use crate::sink::{Evicted, EvictionSink, SinkFull};
-use crate::wire::{encode_codes_as, wire_count};
+use crate::wire::{encode_codes_as, wire_count, SessionConfig};
 
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32; a stamped entry's
 /// weight n as f32 bits, its tick in the 4 bytes after), all little-endian.
@@ -17,6 +17,28 @@ pub(super) const ENTRY_HEAD: usize = 20;
 /// in place of the count's (at least 1), and the 4-byte weight.
 #[cfg(feature = "forgetting")]
 pub(super) const STAMP_EXTRA: usize = 9;
+
+/// Whether a session forgets: its summaries are stamped (never without the `forgetting` feature).
+#[inline]
+pub(super) fn stamped(config: &SessionConfig) -> bool {
+    #[cfg(feature = "forgetting")]
+    return config.half_life > 0.0;
+    #[cfg(not(feature = "forgetting"))]
+    return {
+        let _ = config;
+        false
+    };
+}
+
+/// Bytes of a queue entry between its head and its codes: a stamped entry's tick.
+#[inline]
+pub(super) fn stamp_len(config: &SessionConfig) -> usize {
+    if stamped(config) {
+        4
+    } else {
+        0
+    }
+}
 
 /// A summary's weight as the encoder sends it: a whole point count, or (a session that forgets) the
 /// weight n with the tick of the voxel's last change.
@@ -65,21 +87,15 @@ pub(super) fn parse_entry_head(head: &[u8; ENTRY_HEAD]) -> (VoxelKey, u32, u32) 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// Whether the session forgets: its summaries are stamped.
     #[inline]
+    #[cfg_attr(not(feature = "forgetting"), allow(dead_code))]
     pub(super) fn stamped(&self) -> bool {
-        #[cfg(feature = "forgetting")]
-        return self.config.half_life > 0.0;
-        #[cfg(not(feature = "forgetting"))]
-        return false;
+        stamped(&self.config)
     }
 
     /// Bytes of a queue entry between its head and its codes (the tick of a stamped one).
     #[inline]
     pub(super) fn stamp_len(&self) -> usize {
-        if self.stamped() {
-            4
-        } else {
-            0
-        }
+        stamp_len(&self.config)
     }
 
     /// The weight a voxel is sent with, or `None` if the decoder would refuse it (not valid; a count not
