@@ -131,6 +131,9 @@ impl<
         self.map
             .set_cooling(setup.cooling)
             .map_err(SetupError::Map)?;
+        self.map
+            .set_mean_weights(setup.mean_weights)
+            .map_err(SetupError::Map)?;
         if setup.int8_scale != 0.0 {
             self.map
                 .set_int8_scale(setup.int8_scale)
