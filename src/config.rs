@@ -130,6 +130,12 @@ pub enum ConfigError {
     /// Forgetting asked of a map that keeps no stamps ([`crate::forget::Timeless`]: use
     /// [`crate::forget::Fading`]).
     Forgetting,
+    /// Mean weights ([`crate::quant::MeanWeights`]) must have non-decreasing breakpoints in 1..D, and a
+    /// build with the `mean-weights` feature.
+    MeanWeights,
+    /// The fixed-point cooling ([`crate::quant::Cooling::Fixed`]) codes every dimension on one step: a map
+    /// with mean weights cools in f32.
+    MeanWeightsFixedCooling,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -150,6 +156,12 @@ impl core::fmt::Display for ConfigError {
             }
             Self::Cooling => "this build does not link the requested cooling method",
             Self::Forgetting => "this map never forgets: give it the Fading clock to forget",
+            Self::MeanWeights => {
+                "mean weights: breakpoints must be non-decreasing and in 1..D, in a build with feature mean-weights"
+            }
+            Self::MeanWeightsFixedCooling => {
+                "mean weights need the f32 cooling (the fixed-point cooling codes every dimension on one step)"
+            }
         })
     }
 }

@@ -96,9 +96,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         // Forgetting: the codes are as of their stamp, the hot statistics as of theirs (never earlier), so
         // the codes fade to the hot stamp before the exact merge ([`crate::forget::Stamped::merge`]).
         let older = self.clock.forgetting().is_some() && slot.stamp != hot.stamp;
+        let weighed = !self.mean_weights.is_ones();
         match (&hot.acc, slot.codes.count > 0.0) {
-            // A first visit of f32 points: its codes are its hot statistics (no decode, no merge).
-            (Acc::Float(o), false) => slot.codes = slot.codes.reencode(o, &mut self.dither),
+            // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
+            // the mean is weighed first (below).
+            (Acc::Float(o), false) if !weighed => {
+                slot.codes = slot.codes.reencode(o, &mut self.dither)
+            }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
             (Acc::Codes(c), _) if fixed && !older => {
@@ -110,10 +114,12 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                 if seen {
                     slot.codes.decode_into(&mut self.scratch);
                     bring_forward(&self.clock, &mut self.scratch, slot.stamp, hot.stamp);
+                    self.mean_weights.apply(&mut self.scratch.mean, false);
                 } else {
                     self.scratch = ObsStats::EMPTY;
                 }
                 acc.merge_into(&mut self.scratch, self.int8_scale);
+                self.mean_weights.apply(&mut self.scratch.mean, true);
                 slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
             }
             _ => {}

@@ -32,6 +32,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     /// stamp (never earlier) and the hot part merged.
     pub(super) fn stamped_slot(&self, slot: &Slot<D, P, C::Stamp>) -> (ObsStats<D>, C::Stamp) {
         let mut obs = slot.codes.decode();
+        self.mean_weights.apply(&mut obs.mean, false);
         let mut stamp = slot.stamp;
         if let Some(hot) = usize::from(slot.hot)
             .checked_sub(1)

@@ -26,6 +26,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             return C::ZERO;
         };
         slot.codes.decode_into(&mut self.scratch);
+        self.mean_weights.apply(&mut self.scratch.mean, false);
         let mut stamp = slot.stamp;
         if let Some(h) = usize::from(slot.hot).checked_sub(1) {
             if let Some(hot) = self.hot.get(h) {

@@ -3,7 +3,7 @@
 use crate::config::{ConfigError, MapConfig};
 use crate::forget::Forgetting;
 use crate::frame::EncoderSettings;
-use crate::quant::Cooling;
+use crate::quant::{Cooling, MeanWeights};
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 
 /// Everything a [`Mapper`](super::Mapper) is configured with; `const`-constructible, so a firmware keeps it in a `static`.
@@ -36,6 +36,9 @@ pub struct Setup {
     /// How the map forgets ([`crate::forget`]; `None`, the default: never). Needs a mapper with the
     /// [`crate::forget::Fading`] clock; sent in the session header.
     pub forgetting: Option<Forgetting>,
+    /// Per-dimension weights of the map's mean codes ([`MeanWeights::ONES`]: one step for all; others need
+    /// the `mean-weights` feature and the f32 cooling). The robot's own storage: the wire does not carry them.
+    pub mean_weights: MeanWeights,
 }
 
 impl Setup {
@@ -50,6 +53,7 @@ impl Setup {
             int8_scale: 0.0,
             cooling: Cooling::NATIVE,
             forgetting: None,
+            mean_weights: MeanWeights::ONES,
         }
     }
 
@@ -70,6 +74,15 @@ impl Setup {
     /// The same setup cooling int8 sums by `cooling` (a hosted build takes either; bare metal its native).
     pub const fn with_cooling(self, cooling: Cooling) -> Self {
         Self { cooling, ..self }
+    }
+
+    /// The same setup with per-dimension weights of the map's mean codes (e.g.
+    /// [`MeanWeights::from_spreads`] of the PCA components' spreads).
+    pub const fn with_mean_weights(self, mean_weights: MeanWeights) -> Self {
+        Self {
+            mean_weights,
+            ..self
+        }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.
