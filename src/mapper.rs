@@ -134,15 +134,12 @@ impl<
         self.map
             .set_cooling(setup.cooling)
             .map_err(SetupError::Map)?;
+        // Only with the `forgetting` feature: the link must carry stamps for a map that forgets (without
+        // it a mapper never forgets, and none of this is linked).
+        #[cfg(feature = "forgetting")]
         self.map
             .set_forgetting(setup.forgetting)
             .map_err(SetupError::Map)?;
-        // Built without the `forgetting` feature, the link cannot carry stamps: a map that forgets would
-        // send statistics no summary can hold.
-        #[cfg(not(feature = "forgetting"))]
-        if setup.forgetting.is_some() {
-            return Err(SetupError::Link(crate::wire::WireError::BadConfig));
-        }
         // Without the feature only all-ones weights exist: one byte compared, no weighing code linked.
         #[cfg(feature = "mean-weights")]
         self.map

@@ -1,6 +1,7 @@
 //! What a [`Mapper`](super::Mapper) is configured with (a `const` [`Setup`]) and why it refuses one.
 
 use crate::config::{ConfigError, MapConfig};
+#[cfg(feature = "forgetting")]
 use crate::forget::Forgetting;
 use crate::frame::EncoderSettings;
 use crate::quant::{Cooling, MeanWeights};
@@ -34,7 +35,9 @@ pub struct Setup {
     /// How the map cools int8 sums ([`Cooling::NATIVE`] unless a host twin asks for a board's method).
     pub cooling: Cooling,
     /// How the map forgets ([`crate::forget`]; `None`, the default: never). Needs a mapper with the
-    /// [`crate::forget::Fading`] clock; sent in the session header.
+    /// [`crate::forget::Fading`] clock; sent in the session header. (Only with the `forgetting` feature,
+    /// which the link needs to carry stamps.)
+    #[cfg(feature = "forgetting")]
     pub forgetting: Option<Forgetting>,
     /// Per-dimension weights of the map's mean codes ([`MeanWeights::ONES`]: one step for all; others need
     /// the `mean-weights` feature and the f32 cooling). The robot's own storage: the wire does not carry them.
@@ -52,12 +55,14 @@ impl Setup {
             feature_space: NO_FEATURE_SPACE,
             int8_scale: 0.0,
             cooling: Cooling::NATIVE,
+            #[cfg(feature = "forgetting")]
             forgetting: None,
             mean_weights: MeanWeights::ONES,
         }
     }
 
     /// The same setup forgetting with `forgetting` (a mapper with the [`crate::forget::Fading`] clock).
+    #[cfg(feature = "forgetting")]
     pub const fn with_forgetting(self, forgetting: Option<Forgetting>) -> Self {
         Self { forgetting, ..self }
     }
