@@ -22,9 +22,18 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         ok(k.x, centre.x) && ok(k.y, centre.y) && ok(k.z, centre.z)
     }
 
+    /// Whether a key is within the window's radius of its centre: [`VoxelKey::distance_squared`] ≤ r², in
+    /// 32 bits (per point; a 64-bit product is a library call on v6-M). An axis farther than r is outside
+    /// at once; otherwise every |d| ≤ r ≤ [`super::MAX_WINDOW_VOXELS`] < 2¹⁵, so d² sums below 3·2³⁰.
+    #[inline]
     pub(super) fn in_window(&self, k: VoxelKey) -> bool {
-        let r = i64::from(self.radius);
-        k.distance_squared(self.centre) <= r * r
+        let r = self.radius.unsigned_abs();
+        let (dx, dy, dz) = (
+            k.x.abs_diff(self.centre.x),
+            k.y.abs_diff(self.centre.y),
+            k.z.abs_diff(self.centre.z),
+        );
+        dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r
     }
 
     /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number

@@ -131,17 +131,15 @@ fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
         0
     } else {
         // (4 + f) · 1/s² mantissa < 7 · 2²⁴.
-        u64::from(shift(
-            (4 + (k & 3)) * u.inv_s2,
-            (k >> 2) as i32 + u.old_shift,
-        ))
+        shift((4 + (k & 3)) * u.inv_s2, (k >> 2) as i32 + u.old_shift)
     };
-    let within = mul32(numer, u.r1) >> (32 + g);
+    // g ∈ [−15, 15]: both shifts are by 17 to 51 bits, each result saturated to 32 bits (so is the sum).
+    let within = shr_sat32(mul32(numer, u.r1), (32 + g) as u32);
     let d2 = mul32(d.unsigned_abs(), d.unsigned_abs());
     // d2 · w with w < 2¹⁷ and d2 < 2⁴⁵: its high word times w fits 32 bits.
     let d2w = mul32(d2 as u32, u.w) + (u64::from(((d2 >> 32) as u32).wrapping_mul(u.w)) << 32);
-    let between = d2w >> (36 + g); // d: 14 fraction bits, squared 28, w 8
-    let total = (old + within + between).min(u64::from(u32::MAX)) as u32;
+    let between = shr_sat32(d2w, (36 + g) as u32); // d: 14 fraction bits, squared 28, w 8
+    let total = old.saturating_add(within).saturating_add(between);
     if total == 0 {
         return 0;
     }
