@@ -82,7 +82,10 @@ impl Int8Fix {
 macro_rules! per_dim_step {
     ($item:item) => {
         #[cfg_attr(all(target_arch = "riscv32", not(target_feature = "f")), inline(never))]
-        #[cfg_attr(not(all(target_arch = "riscv32", not(target_feature = "f"))), inline(always))]
+        #[cfg_attr(
+            not(all(target_arch = "riscv32", not(target_feature = "f"))),
+            inline(always)
+        )]
         $item
     };
 }
