@@ -25,13 +25,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// Whether a key is within the window's radius of its centre: [`VoxelKey::distance_squared`] ≤ r².
     #[inline]
     pub(super) fn in_window(&self, k: VoxelKey) -> bool {
-        #[cfg(all(target_arch = "arm", target_feature = "thumb2"))]
+        #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
         return {
-            // `smull`/`smlal`: the 64-bit form is the shortest here.
+            // The M4F's `smull`/`smlal`: the 64-bit form is the shortest there.
             let r = i64::from(self.radius);
             k.distance_squared(self.centre) <= r * r
         };
-        #[cfg(not(all(target_arch = "arm", target_feature = "thumb2")))]
+        #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
         return self.in_window_32(k);
     }
 
@@ -39,6 +39,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     /// multiplies on RV32). An axis farther than r is outside at once; otherwise every |d| ≤ r ≤
     /// [`super::MAX_WINDOW_VOXELS`] < 2¹⁵, so the d² sum stays below 3·2³⁰.
     #[inline]
+    #[cfg_attr(all(target_arch = "arm", target_abi = "eabihf"), allow(dead_code))]
     pub(super) fn in_window_32(&self, k: VoxelKey) -> bool {
         let r = self.radius.unsigned_abs();
         let (dx, dy, dz) = (

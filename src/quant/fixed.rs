@@ -14,10 +14,10 @@
 //! Only the targets without an FPU cool int8 sums this way ([`super::Cooling::NATIVE`]; a hosted build
 //! links both, so the QEMU boards' host twins compute what each board does). Measured with
 //! `boards/measure.sh` (depth frames, f = 3, i8 features, instructions per point): riscv32imac 3,393 →
-//! 1,824, thumbv6m 5,111 → 2,521 (2,667 since the an385 builds at opt-level 2 for flash), but the
+//! 1,824 (1,767 in one pass), thumbv6m 5,111 → 2,521 (2,667 at opt-level 2; 2,302 in one pass), but the
 //! Cortex-M4F 1,004 → 1,312 — its FPU runs the f32 cooling in fewer instructions than these integer passes
 //! (≈ 150 per dimension), so it keeps the f32 cooling (1,015). The
-//! per-dimension helpers are kept out of line (flash: riscv32imac stays under 64 KiB); on v6-M the 64-bit
+//! per-dimension helpers are kept out of line on riscv32imac (flash: it stays under 64 KiB); on v6-M the 64-bit
 //! products are built from 16-bit halves.
 
 use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};

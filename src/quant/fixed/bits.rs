@@ -28,16 +28,16 @@ impl Parts {
 inline_with_fpu! {
 /// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
 pub(super) fn lz(v: u32) -> u32 {
-    #[cfg(all(target_arch = "arm", not(target_feature = "thumb2")))]
+    #[cfg(target_abi = "eabi")]
     return lz_halving(v);
-    #[cfg(not(all(target_arch = "arm", not(target_feature = "thumb2"))))]
+    #[cfg(not(target_abi = "eabi"))]
     return v.leading_zeros();
 }
 }
 
 /// Leading zeros by halving the range (five steps): v6-M has no `clz`, and its library call
 /// (`__clzsi2`) runs ≈ 34 instructions against ≈ 18 here. Tested against `leading_zeros`.
-#[cfg(any(all(target_arch = "arm", not(target_feature = "thumb2")), test))]
+#[cfg(any(target_abi = "eabi", test))]
 #[inline(always)]
 pub(super) fn lz_halving(mut v: u32) -> u32 {
     if v == 0 {
