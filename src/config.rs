@@ -127,6 +127,12 @@ pub enum ConfigError {
     Int8Scale,
     /// This build does not link the requested cooling method ([`crate::quant::Cooling::is_built`]).
     Cooling,
+    /// Mean weights ([`crate::quant::MeanWeights`]) must have non-decreasing breakpoints in 1..D, and a
+    /// build with the `mean-weights` feature.
+    MeanWeights,
+    /// The fixed-point cooling ([`crate::quant::Cooling::Fixed`]) codes every dimension on one step: a map
+    /// with mean weights cools in f32.
+    MeanWeightsFixedCooling,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -146,6 +152,12 @@ impl core::fmt::Display for ConfigError {
                 "int8 feature scale must be finite, > 0 and at most FEATURE_LIMIT / (127 sqrt(D))"
             }
             Self::Cooling => "this build does not link the requested cooling method",
+            Self::MeanWeights => {
+                "mean weights: breakpoints must be non-decreasing and in 1..D, in a build with feature mean-weights"
+            }
+            Self::MeanWeightsFixedCooling => {
+                "mean weights need the f32 cooling (the fixed-point cooling codes every dimension on one step)"
+            }
         })
     }
 }

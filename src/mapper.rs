@@ -131,6 +131,15 @@ impl<
         self.map
             .set_cooling(setup.cooling)
             .map_err(SetupError::Map)?;
+        // Without the feature only all-ones weights exist: one byte compared, no weighing code linked.
+        #[cfg(feature = "mean-weights")]
+        self.map
+            .set_mean_weights(setup.mean_weights)
+            .map_err(SetupError::Map)?;
+        #[cfg(not(feature = "mean-weights"))]
+        if !setup.mean_weights.is_ones() {
+            return Err(SetupError::Map(crate::ConfigError::MeanWeights));
+        }
         if setup.int8_scale != 0.0 {
             self.map
                 .set_int8_scale(setup.int8_scale)

@@ -89,9 +89,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         let Some(slot) = self.slots.get_mut(s) else {
             return;
         };
+        let weighed = !self.mean_weights.is_ones();
         match (&hot.acc, slot.codes.count > 0.0) {
-            // A first visit of f32 points: its codes are its hot statistics (no decode, no merge).
-            (Acc::Float(o), false) => slot.codes = slot.codes.reencode(o, &mut self.dither),
+            // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
+            // the mean is weighed first (below).
+            (Acc::Float(o), false) if !weighed => {
+                slot.codes = slot.codes.reencode(o, &mut self.dither)
+            }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise they merge in f32 below.
             (Acc::Codes(c), _) if fixed => {
@@ -102,10 +106,12 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             (acc, seen) if !acc.is_empty() => {
                 if seen {
                     slot.codes.decode_into(&mut self.scratch);
+                    self.mean_weights.apply(&mut self.scratch.mean, false);
                 } else {
                     self.scratch = ObsStats::EMPTY;
                 }
                 acc.merge_into(&mut self.scratch, self.int8_scale);
+                self.mean_weights.apply(&mut self.scratch.mean, true);
                 slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
             }
             _ => {}

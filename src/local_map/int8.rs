@@ -45,6 +45,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         if !cooling.is_built() {
             return Err(ConfigError::Cooling);
         }
+        if cooling == Cooling::Fixed && !self.mean_weights.is_ones() {
+            return Err(ConfigError::MeanWeightsFixedCooling);
+        }
         #[cfg(not(target_os = "none"))]
         {
             self.cooling = cooling;

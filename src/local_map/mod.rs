@@ -27,8 +27,9 @@
 //!
 //! The parts live in private submodules: `index` (key → slot), `slots` (the ring, CLOCK eviction, flush),
 //! `hot` (the f32 tier and cooling), `window` (wrapped keys, moving the window), `live` (which held voxels
-//! changed since the link last streamed them), `int8` (int8 features), `read` (statistics, posteriors,
-//! what it can answer); this file holds the layout, configuration and adding f32 points.
+//! changed since the link last streamed them), `int8` (int8 features), `codes` (per-dimension weights of the
+//! mean codes), `read` (statistics, posteriors, what it can answer); this file holds the layout,
+//! configuration and adding f32 points.
 
 use crate::batch::{locate, Rejection, RejectionCounts};
 use crate::config::{ConfigError, MapConfig, Prior};
@@ -153,12 +154,15 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     /// How int8 sums cool (a hosted build links both methods; bare metal only its target's).
     #[cfg(not(target_os = "none"))]
     cooling: crate::quant::Cooling,
+    /// Per-dimension weights of the mean codes (see `codes`).
+    mean_weights: codes::Weights,
     dither: Dither,
     next_residency: u32,
     rejections: RejectionCounts,
     counters: Counters,
 }
 
+mod codes;
 mod hot;
 mod index;
 mod int8;
@@ -197,6 +201,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         int8_fix: Int8Fix::NONE,
         #[cfg(not(target_os = "none"))]
         cooling: crate::quant::Cooling::NATIVE,
+        mean_weights: codes::Weights::ONES,
         dither: Dither::UNSEEDED,
         next_residency: 0,
         rejections: RejectionCounts {
@@ -245,6 +250,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.stranded = false;
         self.int8_scale = 0.0;
         self.int8_fix = Int8Fix::NONE;
+        self.mean_weights = codes::Weights::ONES;
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
         Ok(())

@@ -19,6 +19,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
 
     pub(super) fn decode_slot(&self, slot: &Slot<D, P>) -> ObsStats<D> {
         let mut obs = slot.codes.decode();
+        self.mean_weights.apply(&mut obs.mean, false);
         if let Some(hot) = usize::from(slot.hot)
             .checked_sub(1)
             .and_then(|h| self.hot.get(h))

@@ -21,6 +21,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             return;
         };
         slot.codes.decode_into(&mut self.scratch);
+        self.mean_weights.apply(&mut self.scratch.mean, false);
         if let Some(h) = usize::from(slot.hot).checked_sub(1) {
             if let Some(hot) = self.hot.get(h) {
                 hot.acc.merge_into(&mut self.scratch, self.int8_scale);

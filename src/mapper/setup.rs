@@ -2,7 +2,7 @@
 
 use crate::config::{ConfigError, MapConfig};
 use crate::frame::EncoderSettings;
-use crate::quant::Cooling;
+use crate::quant::{Cooling, MeanWeights};
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
 
 /// Everything a [`Mapper`](super::Mapper) is configured with; `const`-constructible, so a firmware keeps it in a `static`.
@@ -32,6 +32,9 @@ pub struct Setup {
     pub int8_scale: f32,
     /// How the map cools int8 sums ([`Cooling::NATIVE`] unless a host twin asks for a board's method).
     pub cooling: Cooling,
+    /// Per-dimension weights of the map's mean codes ([`MeanWeights::ONES`]: one step for all; others need
+    /// the `mean-weights` feature and the f32 cooling). The robot's own storage: the wire does not carry them.
+    pub mean_weights: MeanWeights,
 }
 
 impl Setup {
@@ -45,6 +48,7 @@ impl Setup {
             feature_space: NO_FEATURE_SPACE,
             int8_scale: 0.0,
             cooling: Cooling::NATIVE,
+            mean_weights: MeanWeights::ONES,
         }
     }
 
@@ -60,6 +64,15 @@ impl Setup {
     /// The same setup cooling int8 sums by `cooling` (a hosted build takes either; bare metal its native).
     pub const fn with_cooling(self, cooling: Cooling) -> Self {
         Self { cooling, ..self }
+    }
+
+    /// The same setup with per-dimension weights of the map's mean codes (e.g.
+    /// [`MeanWeights::from_spreads`] of the PCA components' spreads).
+    pub const fn with_mean_weights(self, mean_weights: MeanWeights) -> Self {
+        Self {
+            mean_weights,
+            ..self
+        }
     }
 
     /// The session configuration a `dim`-dimensional map sends in its header.

@@ -3,7 +3,8 @@
 //! A voxel's f32 statistics (n, m, S) at D = 64 are 516 B (the authors' code keeps 528 B of posterior per
 //! voxel). On a microcontroller the map must hold thousands of voxels, so each is stored as:
 //! - n as f32 — exact, so every point is counted once through every merge;
-//! - m as [`MU_BITS`]-bit signed codes times one per-voxel f16 scale (max |mᵢ| / q_max);
+//! - m as [`MU_BITS`]-bit signed codes times one per-voxel f16 scale (max |mᵢ| / q_max), optionally with a
+//!   per-dimension weight 2^−sᵢ of that step ([`MeanWeights`], feature `mean-weights`);
 //! - S as [`PSI_BITS`]-bit codes of its float bit pattern shifted right, i.e. a "minifloat" with
 //!   2^[`PSI_STEPS_LOG2`] steps per octave, relative to a per-voxel base: S is non-negative and spans orders
 //!   of magnitude, so a logarithmic code keeps the relative error even (a single point's S = 0 codes as 0).
@@ -42,8 +43,10 @@ macro_rules! inline_with_fpu {
 
 mod cooling;
 mod fixed;
+mod weights;
 pub use cooling::Cooling;
 pub use fixed::Int8Fix;
+pub use weights::{MeanWeights, MAX_MEAN_SHIFT};
 
 // Widths measured on the 400-frame tile run (host-sim/tests/local_map_accuracy.rs: μ RMS, Ψ p95 with the
 // default / a weak prior) and on the streaming tests' PCA features (μ RMS against the f32 reference), bytes

@@ -25,8 +25,8 @@ use crate::sim::vocab::{Vocabulary, FULL_DIM};
 use crate::sim::{mix_all, pca, unit, Sequence};
 use indicatif::ProgressBar;
 use latentbki::{
-    decode::Pca, inference::Spread, sampling::Sampler, sampling::SamplingMode, stats::VoxelStats,
-    MapConfig,
+    decode::Pca, inference::Spread, quant::MeanWeights, sampling::Sampler, sampling::SamplingMode,
+    stats::VoxelStats, MapConfig,
 };
 use rand_xoshiro::rand_core::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -71,6 +71,9 @@ pub struct Decoding {
     pub pca: Box<Pca<D, FULL_DIM>>,
     /// Share of the training features' variance the PCA keeps.
     pub explained_variance: f64,
+    /// The on-device map's per-dimension weights of its mean codes, from the spread of each PCA
+    /// component over the training features ([`MeanWeights::from_spreads`]).
+    pub mean_weights: MeanWeights,
     /// The codebook of the class phrases.
     pub decoder: Decoder,
     /// The encoder of the test sequence.
@@ -106,6 +109,7 @@ pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::
         anyhow::anyhow!("fitting the feature PCA on the training sequence: {e} (more points per frame, or more frames, are needed)")
     })?;
     let explained_variance = pca::explained_variance(&pca, &samples);
+    let mean_weights = MeanWeights::from_spreads(&pca::spreads(&pca, &samples));
     let decoder = Decoder::from_pca(&pca, &embeddings)
         .map_err(|e| anyhow::anyhow!("building the codebook: {e}"))?;
     let encoder = Encoder::new(embeddings, setup.noise, setup.seed);
@@ -114,6 +118,7 @@ pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::
         classes: train.classes.clone(),
         pca,
         explained_variance,
+        mean_weights,
         decoder,
         encoder,
         projected,
@@ -269,13 +274,23 @@ fn build(
                 .map_err(|err| anyhow::anyhow!("{}: {err}", method.label()))?,
         ),
         Method::OnDevice(f) => Box::new(
-            OnDevice::new(with_filter(config, f)?, setup.device_window, link)
-                .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?,
+            OnDevice::new(
+                with_filter(config, f)?,
+                setup.device_window,
+                dec.mean_weights,
+                link,
+            )
+            .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?,
         ),
         Method::OnDeviceInt8(f) => Box::new(
-            OnDevice::new(with_filter(config, f)?, setup.device_window, None)
-                .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?
-                .with_int8_features(),
+            OnDevice::new(
+                with_filter(config, f)?,
+                setup.device_window,
+                dec.mean_weights,
+                None,
+            )
+            .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?
+            .with_int8_features(),
         ),
     })
 }

@@ -22,7 +22,8 @@ use crate::ObsMap;
 use latentbki::frame::EncoderSettings;
 use latentbki::{
     batch::locate, batch::spread, decode::Codebook, kernel::KernelLut, key::VoxelKey,
-    obs::ObsLookup, obs::ObsStats, sink::Evicted, stats::VoxelStats, MapConfig, Setup,
+    obs::ObsLookup, obs::ObsStats, quant::MeanWeights, sink::Evicted, stats::VoxelStats, MapConfig,
+    Setup,
 };
 use std::collections::HashMap;
 
@@ -319,15 +320,18 @@ fn record(evicted: &mut HashMap<VoxelKey, ObsStats<D>>, v: &Evicted<'_, D>) {
 const INT8_HEADROOM: f32 = 1.25;
 
 impl OnDevice {
-    /// A robot with a window of `window_radius` metres around it; its link goes to `link` (e.g. the
+    /// A robot with a window of `window_radius` metres around it, its mean codes weighed by
+    /// `mean_weights`; its link goes to `link` (e.g. the
     /// simulated radio to the base station), or nowhere.
     pub fn new(
         config: MapConfig,
         window_radius: f32,
+        mean_weights: MeanWeights,
         link: Option<Box<dyn Radio>>,
     ) -> Result<Self, latentbki::SetupError> {
         let mut robot: Box<DeviceRobot> = Box::new(DeviceRobot::EMPTY);
-        let setup = Setup::new(config, window_radius, EncoderSettings::new(1, 1));
+        let setup = Setup::new(config, window_radius, EncoderSettings::new(1, 1))
+            .with_mean_weights(mean_weights);
         let setup = link.as_ref().map_or(setup, |l| l.setup(setup));
         robot.configure(&setup)?;
         Ok(Self {

@@ -87,3 +87,16 @@ pub fn explained_variance<const D: usize>(
         1.0
     }
 }
+
+/// The spread (standard deviation) of each component over the samples: how far a feature reaches along
+/// it, which sets the step the on-device map's mean codes need there (`latentbki::quant::MeanWeights`).
+pub fn spreads<const D: usize>(pca: &Pca<D, FULL_DIM>, samples: &[[f32; FULL_DIM]]) -> [f32; D] {
+    let mut sq = [0.0f64; D];
+    for s in samples {
+        for (a, z) in sq.iter_mut().zip(pca.project(s)) {
+            *a += f64::from(z) * f64::from(z);
+        }
+    }
+    let n = samples.len().max(1) as f64;
+    sq.map(|a| (a / n).sqrt() as f32)
+}
