@@ -25,9 +25,32 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         ok(k.x, centre.x) && ok(k.y, centre.y) && ok(k.z, centre.z)
     }
 
+    /// Whether a key is within the window's radius of its centre: [`VoxelKey::distance_squared`] ≤ r².
+    #[inline]
     pub(super) fn in_window(&self, k: VoxelKey) -> bool {
-        let r = i64::from(self.radius);
-        k.distance_squared(self.centre) <= r * r
+        #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+        return {
+            // The M4F's `smull`/`smlal`: the 64-bit form is the shortest there.
+            let r = i64::from(self.radius);
+            k.distance_squared(self.centre) <= r * r
+        };
+        #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+        return self.in_window_32(k);
+    }
+
+    /// [`Self::in_window`] in 32 bits (per point; a 64-bit product is a library call on v6-M, three
+    /// multiplies on RV32). An axis farther than r is outside at once; otherwise every |d| ≤ r ≤
+    /// [`super::MAX_WINDOW_VOXELS`] < 2¹⁵, so the d² sum stays below 3·2³⁰.
+    #[inline]
+    #[cfg_attr(all(target_arch = "arm", target_abi = "eabihf"), allow(dead_code))]
+    pub(super) fn in_window_32(&self, k: VoxelKey) -> bool {
+        let r = self.radius.unsigned_abs();
+        let (dx, dy, dz) = (
+            k.x.abs_diff(self.centre.x),
+            k.y.abs_diff(self.centre.y),
+            k.z.abs_diff(self.centre.z),
+        );
+        dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r
     }
 
     /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number
@@ -68,5 +91,44 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         }
         self.stranded = stranded;
         evicted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_32_bit_window_test_is_the_64_bit_one() {
+        let mut map = LocalMap::<4, 4, 4, 2>::EMPTY;
+        let mut seed = 0x9E37_79B9u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for radius in [1, 2, 7, 100, super::super::MAX_WINDOW_VOXELS] {
+            map.radius = radius;
+            for _ in 0..20_000 {
+                let c = |v: u32| (v % (4 * radius as u32 + 3)) as i32 - 2 * radius - 1;
+                let far = |v: u32| v as i32 >> (v % 32);
+                map.centre = VoxelKey::new(far(next()), c(next()), 0);
+                let k = VoxelKey::new(
+                    map.centre.x.wrapping_add(c(next())),
+                    map.centre.y.wrapping_add(c(next())),
+                    far(next()) % 3 * c(next()),
+                );
+                let r = i64::from(radius);
+                let want = k.distance_squared(map.centre) <= r * r;
+                assert_eq!(
+                    map.in_window_32(k),
+                    want,
+                    "{k:?} {:?} r = {radius}",
+                    map.centre
+                );
+                assert_eq!(map.in_window(k), want);
+            }
+        }
     }
 }
