@@ -12,6 +12,8 @@
 #        boards/measure.sh --panic-never   the link-time proof that no panic is reachable (CI): builds with
 #                                     `--features panic-never`, runs it and checks its UART bytes equal the
 #                                     reporting build's
+#        boards/measure.sh --forgetting   the cost of forgetting and of scoring a candidate view (issue 21):
+#                                     the rows of a build with `--features forgetting` against this one's
 #        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots)
 set -euo pipefail
 cd "$(dirname "$0")/qemu-mps2-an386"
@@ -50,6 +52,60 @@ if [ "${1:-}" = --panic-never ]; then
     echo "the panic-never build streams different bytes from the reporting build" >&2; exit 1; }
   echo "panic-never ok: links, runs, streams the same $(wc -c < "$OUT/uart-panic-never.bin") bytes"
   bash ../measure-targets.sh --panic-never   # thumbv6m and riscv32imac
+  exit 0
+fi
+
+# ---- forgetting (issue 21): the same scenarios on a mapper that forgets (half-life 4 frames, one tick per
+# frame), plus one candidate view scored after each frame, built apart (`--features forgetting`, its own
+# target dir: never the golden firmware), against this build's rows. Prints its rows of the table.
+if [ "${1:-}" = --forgetting ]; then
+  FG_ELF=$(CARGO_TARGET_DIR="$CARGO_TARGET_DIR/forgetting" \
+    cargo build --release --quiet --features forgetting --message-format=json-render-diagnostics |
+    python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])')
+  OUT="$OUT/insncount.so" plugin/build.sh
+  for run in off on; do
+    elf=$ELF; [ $run = on ] && elf=$FG_ELF
+    QEMU_PLUGIN="$OUT/insncount.so" QEMU_PLUGIN_LOG="$OUT/insn-$run.log" QEMU_SERIAL="$OUT/uart-$run.bin" \
+      ./run-qemu.sh "$elf" > "$OUT/stdout-$run.txt" || { echo "firmware ($run) failed: exit code $?" >&2; exit 1; }
+    grep -q '^done$' "$OUT/stdout-$run.txt" || { echo "firmware ($run) did not finish" >&2; exit 1; }
+  done
+  "$LLVM_BIN/llvm-size" -A -d "$FG_ELF" | awk '$1==".vector_table"{vt=$2} $1==".text"{t=$2} $1==".rodata"{ro=$2}
+    $1==".data"{d=$2} END{print vt+t+ro+d}' > "$OUT/flash-forgetting.txt"
+  python3 - "$OUT" <<'PY'
+import re, sys
+out = sys.argv[1]
+kv = lambda line: dict(re.findall(r'(\w+)=(\d+)', line))
+def runs(which):
+    lines = [l for l in open(f"{out}/stdout-{which}.txt") if l.startswith(("frame ", "view "))]
+    marks = [int(l.split()[2]) for l in open(f"{out}/insn-{which}.log") if l.startswith("mark ")]
+    assert len(lines) == len(marks), (which, len(lines), len(marks))
+    names = {int(kv(l)["s"]): re.search(r'name=(\w+)', l).group(1)
+             for l in open(f"{out}/stdout-{which}.txt") if l.startswith("scenario ")}
+    frames, views = {}, {}
+    for l, m in zip(lines, marks):
+        d = kv(l)
+        if l.startswith("frame "):
+            frames.setdefault(names[int(d["s"])], []).append((int(d["points"]), m))
+        else:
+            views.setdefault(names[int(d["s"])], []).append(m)
+    return frames, views
+off, _ = runs("off")
+on, views = runs("on")
+flash = int(open(f"{out}/flash-forgetting.txt").read())
+for name, label in [("depth_f3", "f32 features"), ("depth_f3_i8", "i8 features")]:
+    p = sum(n for n, _ in on[name])
+    a = sum(i for _, i in off[name]) / sum(n for n, _ in off[name])
+    b = sum(i for _, i in on[name]) / p
+    v = sum(views[name])
+    c = (sum(i for _, i in on[name]) + v) / p
+    print(f"| instructions/point, f = 3, thumbv7em, {label}, forgetting on (half-life 4 frames; {len(on[name])} depth "
+          f"frames, {p:,} points) | {b:.0f} mean, {100 * (b / a - 1):+.1f} % vs {a:.0f} without; with one candidate view "
+          f"scored per frame {c:.0f}, {100 * (c / a - 1):+.1f} % | ≤ +15 % |")
+v = sorted(views["depth_f3"])
+print(f"| instructions to score one candidate view of 64 voxels (`Mapper::view_score`), f = 3, after each depth frame "
+      f"| median {v[len(v) // 2]}, {v[0]}–{v[-1]} ({len(v)} views) | |")
+print(f"| flash, the forgetting build (forgetting and view scoring linked) | {flash / 1024:.1f} KiB ({flash} B) | ≤ 64 KB |")
+PY
   exit 0
 fi
 

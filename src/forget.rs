@@ -43,8 +43,9 @@ impl Forgetting {
         self.half_life
     }
 
-    /// γ^age = 2^(−age/h): the weight left after `age` ticks (1 for age 0).
-    #[inline]
+    /// γ^age = 2^(−age/h): the weight left after `age` ticks (1 for age 0). Out of line: it runs once
+    /// per voxel and tick, and each inlined copy of `exp2` costs flash on a board.
+    #[inline(never)]
     pub fn factor(&self, age: u32) -> f32 {
         if age == 0 {
             return 1.0;
@@ -58,8 +59,9 @@ impl Forgetting {
 }
 
 impl<const D: usize> ObsStats<D> {
-    /// Every observation's weight multiplied by `factor` (in [0, 1]): n and S scale, m stays.
-    #[inline]
+    /// Every observation's weight multiplied by `factor` (in [0, 1]): n and S scale, m stays. Out of line
+    /// for the same reason (an unrolled loop of D multiplies per copy).
+    #[inline(never)]
     pub fn decay(&mut self, factor: f32) {
         self.count *= factor;
         for s in &mut self.scatter {
@@ -203,7 +205,7 @@ impl MapClock for Fading {
 }
 
 /// `obs`, stamped `from`, brought forward to `to` under `clock` (unchanged when the clock does not forget
-/// or `to` is not later).
+/// or `to` is not later). Out of line where a clock forgets; nothing at all where it does not.
 #[inline]
 pub fn bring_forward<C: MapClock, const D: usize>(
     clock: &C,

@@ -4,8 +4,8 @@
 
 use latentbki::forget::{Fading, Forgetting, Stamped};
 use latentbki::{
-    key::VoxelKey, local_map::LocalMap, obs::ObsStats, packed_len, sink::Evicted, sink::SinkFull,
-    MapConfig,
+    key::VoxelKey, local_map::LocalMap, obs::ObsLookup, obs::ObsStats, packed_len, sink::Evicted,
+    sink::SinkFull, MapConfig,
 };
 use std::collections::HashMap;
 
@@ -114,6 +114,8 @@ fn reads_and_evictions_equal_the_weighted_moments() {
         for (key, w) in &want {
             let got = map.get(*key).unwrap();
             assert_close(&got, &w.at(&f, now), &format!("{key:?} read at {now}"));
+            // What a view score gathers, without decoding: the same n to the bit.
+            assert_eq!(map.observed_count(*key).to_bits(), got.count.to_bits());
         }
     }
     // Voxel 1 took 8 points until tick 3 (n = 5.85 then): by tick 20 they weigh 2^(−17/3) as much.

@@ -5,6 +5,7 @@
 use crate::*;
 use latentbki::batch::RejectionCounts;
 use latentbki::config::{ConfigError, KernelMode, MapConfig, Prior};
+use latentbki::forget::MapClock;
 use latentbki::frame::{EncoderSettings, Resend};
 use latentbki::local_map::{Counters, LocalMap};
 use latentbki::mapper::{DrainError, Mapper, Setup, SetupError};
@@ -77,11 +78,12 @@ pub fn integrate_frame<
     const H: usize,
     const K: usize,
     M: Probe,
+    C: MapClock,
 >(
     scene: &Scene,
     frame: u32,
     int8_scale: f32,
-    mapper: &mut Mapper<D, CAP, P, QB, N, H>,
+    mapper: &mut Mapper<D, CAP, P, QB, N, H, C>,
     chunk: &mut Chunk<D, K>,
     probe: &mut M,
 ) -> FrameReport {
@@ -279,9 +281,10 @@ impl Scenario {
         const QB: usize,
         const N: usize,
         const H: usize,
+        C: MapClock,
     >(
         &self,
-        mapper: &mut Mapper<D, CAP, P, QB, N, H>,
+        mapper: &mut Mapper<D, CAP, P, QB, N, H, C>,
     ) -> Result<(), SetupError> {
         self.configure_cooling(mapper, Cooling::NATIVE)
     }
@@ -294,13 +297,34 @@ impl Scenario {
         const QB: usize,
         const N: usize,
         const H: usize,
+        C: MapClock,
     >(
         &self,
-        mapper: &mut Mapper<D, CAP, P, QB, N, H>,
+        mapper: &mut Mapper<D, CAP, P, QB, N, H, C>,
         cooling: Cooling,
     ) -> Result<(), SetupError> {
         let setup = self.setup().map_err(SetupError::Map)?;
         mapper.configure(&setup.with_cooling(cooling))
+    }
+
+    /// [`Self::configure`] forgetting with `forgetting` (a mapper with the
+    /// [`latentbki::forget::Fading`] clock; [`run`] ticks once per frame).
+    #[cfg(feature = "forgetting")]
+    pub fn configure_forgetting<
+        const D: usize,
+        const CAP: usize,
+        const P: usize,
+        const QB: usize,
+        const N: usize,
+        const H: usize,
+        C: MapClock,
+    >(
+        &self,
+        mapper: &mut Mapper<D, CAP, P, QB, N, H, C>,
+        forgetting: Option<latentbki::forget::Forgetting>,
+    ) -> Result<(), SetupError> {
+        let setup = self.setup().map_err(SetupError::Map)?;
+        mapper.configure(&setup.with_forgetting(forgetting))
     }
 }
 
@@ -338,13 +362,14 @@ pub fn run<
     const K: usize,
     W,
     M,
+    C: MapClock,
 >(
     scenario: &Scenario,
-    mapper: &mut Mapper<D, CAP, P, QB, N, H>,
+    mapper: &mut Mapper<D, CAP, P, QB, N, H, C>,
     chunk: &mut Chunk<D, K>,
     w: &mut W,
     probe: &mut M,
-    mut on_frame: impl FnMut(u32, &FrameReport, &LocalMap<D, CAP, P, H>),
+    mut on_frame: impl FnMut(u32, &FrameReport, &LocalMap<D, CAP, P, H, C>),
 ) -> Result<RunReport, RunError<W::Error>>
 where
     W: embedded_io::Write,
@@ -361,6 +386,8 @@ where
     let mut back = loopback::Loopback::new();
     let (robot, session) = (SELF_TEST_ROBOT, scenario.session);
     for frame in 0..scenario.frames {
+        // One tick per frame (nothing in a mapper that never forgets).
+        mapper.set_time(frame);
         let f = integrate_frame(
             &scenario.scene,
             frame,

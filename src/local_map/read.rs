@@ -130,4 +130,33 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         self.get(key)
     }
+
+    /// n alone, without decoding the codes (what information gain gathers: a view score looks up f³
+    /// neighbours per voxel), computed as [`Self::get`] computes it, to the bit.
+    fn observed_count(&self, key: VoxelKey) -> f32 {
+        if !Self::wrap_safe(key, self.centre) {
+            return 0.0;
+        }
+        let Some(slot) = self.find(key).and_then(|(_, s)| self.slots.get(s)) else {
+            return 0.0;
+        };
+        let mut n = ObsStats::<0> {
+            count: slot.codes.count,
+            mean: [],
+            scatter: [],
+        };
+        let mut stamp = slot.stamp;
+        if let Some(hot) = usize::from(slot.hot)
+            .checked_sub(1)
+            .and_then(|h| self.hot.get(h))
+        {
+            if !hot.acc.is_empty() {
+                bring_forward(&self.clock, &mut n, slot.stamp, hot.stamp);
+                stamp = hot.stamp;
+            }
+            n.count += hot.acc.points();
+        }
+        bring_forward(&self.clock, &mut n, stamp, self.clock.now());
+        n.count
+    }
 }

@@ -119,6 +119,7 @@ impl StackGauge for PaintedStack {
 /// Markers for the `insncount` QEMU plugin: `addi x0, x0, 10/11/12` (0x00a00013, 0x00b00013, 0x00c00013),
 /// HINT encodings that execute as no-ops. Written with `.insn` so that the assembler keeps them 32-bit
 /// (the C extension would otherwise compress them to `c.nop` hints).
+#[derive(Default)]
 struct HintMarkers;
 
 impl Probe for HintMarkers {

@@ -19,7 +19,7 @@ pub mod mps2;
 use core::convert::Infallible;
 /// The UART trait a board implements (the version the core uses).
 pub use embedded_io;
-use latentbki::local_map::LocalMap;
+use latentbki::local_map::{LocalMap, HOT_VOXELS};
 use latentbki::quant::packed_len;
 use latentbki::Mapper;
 pub use latentbki_selftest::Probe;
@@ -68,7 +68,7 @@ pub fn exit(code: i32) -> ! {
 /// and that the `insncount` QEMU plugin recognises (see `boards/qemu-mps2-an386/plugin/insncount.c`).
 ///
 /// [`report`]: Markers::report
-pub trait Markers: Probe {
+pub trait Markers: Probe + Default {
     /// Log the regions counted since the last report.
     fn report();
 }
@@ -93,8 +93,33 @@ const P: usize = packed_len(D);
 /// Points generated per chunk (4.3 KiB of scratch).
 pub const K: usize = 16;
 
-type Map = LocalMap<D, SELF_TEST_CAPACITY, P>;
-type Robot = Mapper<D, SELF_TEST_CAPACITY, P, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
+#[cfg(not(feature = "forgetting"))]
+type Clock = latentbki::forget::Timeless;
+#[cfg(feature = "forgetting")]
+type Clock = latentbki::forget::Fading;
+/// Half-life of the forgetting build, in frames (ticks): the self-test's runs are 8 to 24 frames long.
+#[cfg(feature = "forgetting")]
+const HALF_LIFE_FRAMES: f32 = 4.0;
+/// Voxels in the candidate view the forgetting build scores after each frame.
+#[cfg(feature = "forgetting")]
+const VIEW_VOXELS: usize = 64;
+
+/// Voxels the map holds: the self-test's RAM budget at this build's bytes per voxel (the forgetting build's
+/// stamps make it 124 B instead of 120: 1,189 voxels instead of 1,228).
+const CAPACITY: usize = selftest::SELF_TEST_MAP_BUDGET
+    / LocalMap::<D, 1, P, HOT_VOXELS, Clock>::BYTES_PER_VOXEL;
+const _: () = assert!(cfg!(feature = "forgetting") || CAPACITY == SELF_TEST_CAPACITY);
+
+type Map = LocalMap<D, CAPACITY, P, HOT_VOXELS, Clock>;
+type Robot = Mapper<
+    D,
+    CAPACITY,
+    P,
+    SELF_TEST_QUEUE_BYTES,
+    SELF_TEST_FRAME_BYTES,
+    HOT_VOXELS,
+    Clock,
+>;
 
 /// The map and the encoder (≈ 170 KiB) live in a static (`.bss`), reconfigured in place for each
 /// scenario; never on the stack.
@@ -164,6 +189,9 @@ where
             f.integrated,
             m.len()
         );
+        // After the frame's line: its `view` line pairs with the next report marker.
+        #[cfg(feature = "forgetting")]
+        score_view::<M>(s, i, m);
         if i + 1 == scenario.frames {
             // Outside the counted regions: how many voxels the full map answers (stored voxels and every
             // voxel within the kernel's reach of one).
@@ -224,7 +252,39 @@ where
 /// table- or buffer-sized value is built on the stack. Kept out of the loop's frame.
 #[inline(never)]
 fn configure(scenario: &Scenario, mapper: &mut Robot) -> Result<(), i32> {
-    scenario.configure(mapper).map_err(|_| exit_code::FAILED)
+    #[cfg(not(feature = "forgetting"))]
+    return scenario.configure(mapper).map_err(|_| exit_code::FAILED);
+    #[cfg(feature = "forgetting")]
+    return scenario
+        .configure_forgetting(mapper, latentbki::forget::Forgetting::new(HALF_LIFE_FRAMES))
+        .map_err(|_| exit_code::FAILED);
+}
+
+/// The forgetting build's second measurement: score one candidate view — the 8 × 8 voxels of a wall 1 m
+/// ahead of the window's centre, one expected point each — against the map as it is after frame `i`
+/// (`info_gain::view_score`, which `Mapper::view_score` runs), bracketed by the markers and reported as a
+/// `view` line. Integers only on stdout (f32 formatting would cost ~10 KB of flash).
+#[cfg(feature = "forgetting")]
+#[inline(never)]
+fn score_view<M: Markers + Default>(s: usize, i: u32, m: &Map) {
+    use latentbki::key::VoxelKey;
+    let c = m.centre();
+    let hits: [(VoxelKey, f32); VIEW_VOXELS] = core::array::from_fn(|j| {
+        let (y, z) = ((j / 8) as i32 - 4, (j % 8) as i32 - 4);
+        (VoxelKey::new(c.x + 10, c.y + y, c.z + z), 1.0)
+    });
+    let mut probe = M::default();
+    probe.start();
+    let score = latentbki::info_gain::view_score(m.kernel(), m, m.prior().lambda, &hits);
+    probe.stop();
+    M::report();
+    report!(
+        "view s={} i={} voxels={} score_bits={}",
+        s,
+        i,
+        VIEW_VOXELS,
+        score.map_or(0, f32::to_bits)
+    );
 }
 
 #[cfg(not(feature = "panic-never"))]

@@ -116,6 +116,7 @@ impl crate::StackGauge for PaintedStack {
 /// Markers for the `insncount` QEMU plugin: Thumb hints 0xBFA0 / 0xBFB0 / 0xBFC0, unallocated, so they
 /// execute as NOP on a Cortex-M and in QEMU. The plugin counts the instructions strictly between a start
 /// and the next stop, sums the regions, and logs the sum at each report marker.
+#[derive(Default)]
 pub struct ThumbMarkers;
 
 impl Probe for ThumbMarkers {
