@@ -3,6 +3,7 @@
 //! outside in place — it reads every key but writes only the evicted slots.
 
 use super::{LocalMap, OCCUPIED};
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::sink::EvictionSink;
 
@@ -15,7 +16,9 @@ pub(super) fn unwrap(w: [i16; 3], centre: VoxelKey) -> VoxelKey {
     VoxelKey::new(d(w[0], centre.x), d(w[1], centre.y), d(w[2], centre.z))
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// Whether a key is close enough to a centre to be stored wrapped (every axis within ±2¹⁵).
     pub(super) fn wrap_safe(k: VoxelKey, centre: VoxelKey) -> bool {
         let ok = |a: i32, c: i32| (i64::from(a) - i64::from(c)).abs() < 1 << 15;
