@@ -14,6 +14,13 @@
 //! The shifts are given as breakpoints, because PCA components come sorted by spread: dimension i has shift
 //! sᵢ = the number of used entries of `from` that are ≤ i. Sixteen bytes whatever D is, `Copy` and `const`.
 //! [`MeanWeights::ONES`] (all weights 1) is today's codes, bit for bit.
+//!
+//! A weighed map also codes on a finer grid ([`super::QuantVoxel::reencode_fine`]): once the small
+//! components use their range, the slack the scale keeps (kept until the largest |mᵢ| falls to ¼ of the top
+//! code, 25 % headroom) is the largest error left. On the demo's tile (the robot's map against the f32
+//! reference of all points, RMS ‖Δμ‖/‖μ‖): one step 0.0664, weights 0.0296, weights and the finer grid
+//! 0.0165. The unweighed map keeps the coarser grid, so its codes (and the boards' streams) stay as they
+//! were.
 
 use crate::config::ConfigError;
 
@@ -184,5 +191,24 @@ mod tests {
         let shifts: [u32; 5] = core::array::from_fn(|i| w.shift(i));
         assert_eq!(shifts, [0, 2, 2, 2, 7]);
         assert!(w.validate(5).is_ok());
+    }
+}
+
+#[cfg(feature = "mean-weights")]
+impl MeanWeights {
+    /// Codes of a weighed mean: [`super::QuantVoxel::reencode_fine`] (the finer grid) unless every weight
+    /// is 1, where the codes stay those of [`super::QuantVoxel::reencode`], bit for bit.
+    #[inline]
+    pub(crate) fn reencode<const D: usize, const P: usize>(
+        &self,
+        codes: &super::QuantVoxel<D, P>,
+        stats: &crate::obs::ObsStats<D>,
+        dither: &mut super::Dither,
+    ) -> super::QuantVoxel<D, P> {
+        if self.is_ones() {
+            codes.reencode(stats, dither)
+        } else {
+            codes.reencode_fine(stats, dither)
+        }
     }
 }
