@@ -212,12 +212,10 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// [`Self::reencode`] on a finer grid, for a map with [`MeanWeights`] (see there): the scale is kept
     /// only while the largest |μᵢ| is within 1/[`FINE_KEEP`] of the top code (not 1/4), and a new one
     /// gets [`FINE_HEADROOM`] (not 25 %).
-    #[cfg(feature = "mean-weights")]
     pub fn reencode_fine(&self, stats: &ObsStats<D>, dither: &mut Dither) -> Self {
         self.reencode_in::<true>(stats, dither)
     }
 
-    #[inline(always)]
     fn reencode_in<const FINE: bool>(&self, stats: &ObsStats<D>, dither: &mut Dither) -> Self {
         let () = Self::CHECK;
         let (keep_within, headroom) = if FINE {
@@ -435,7 +433,6 @@ mod tests {
     }
 
     /// The finer grid of a weighed map re-grids more often: its stored μ must not drift either.
-    #[cfg(feature = "mean-weights")]
     #[test]
     fn the_fine_grid_does_not_drift() {
         let mut d = Dither::new(5);
