@@ -127,6 +127,9 @@ pub enum ConfigError {
     Int8Scale,
     /// This build does not link the requested cooling method ([`crate::quant::Cooling::is_built`]).
     Cooling,
+    /// Forgetting asked of a map that keeps no stamps ([`crate::forget::Timeless`]: use
+    /// [`crate::forget::Fading`]).
+    Forgetting,
     /// Mean weights ([`crate::quant::MeanWeights`]) must have non-decreasing breakpoints in 1..D, and a
     /// build with the `mean-weights` feature.
     MeanWeights,
@@ -152,6 +155,7 @@ impl core::fmt::Display for ConfigError {
                 "int8 feature scale must be finite, > 0 and at most FEATURE_LIMIT / (127 sqrt(D))"
             }
             Self::Cooling => "this build does not link the requested cooling method",
+            Self::Forgetting => "this map never forgets: give it the Fading clock to forget",
             Self::MeanWeights => {
                 "mean weights: breakpoints must be non-decreasing and in 1..D, in a build with feature mean-weights"
             }

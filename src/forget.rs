@@ -13,6 +13,10 @@
 //! the same ticks); a voxel's stamp is the tick of its last change; merging takes the later stamp; reading
 //! at tick t decays by t − stamp (a stamp in the future reads undecayed: clocks never run backwards on the
 //! map). With forgetting off (the default) stamps are ignored and nothing changes.
+//!
+//! Where it runs: host maps keep a stamp per voxel; the on-device `LocalMap` takes its clock as a type
+//! ([`MapClock`]): [`Timeless`] (the default) stores no stamp and links no forgetting code, [`Fading`] keeps
+//! a `u32` tick per voxel (4 B) and forgets once given a half-life.
 
 use crate::obs::ObsStats;
 
@@ -112,6 +116,106 @@ impl<const D: usize> Stamped<D> {
         let mut o = other.obs;
         o.decay(forgetting.factor(now - other.time));
         self.obs.merge(&o);
+    }
+}
+
+/// How a map keeps time. [`Timeless`] never forgets and stores nothing: its stamp is `()`, so a map of it
+/// has the paper's layout and code (a firmware that does not forget links none of this). [`Fading`] keeps a
+/// `u32` tick per voxel and forgets when given a half-life.
+pub trait MapClock: Copy + core::fmt::Debug {
+    /// What a voxel keeps of the time of its last change.
+    type Stamp: Copy + core::fmt::Debug + PartialEq;
+    /// The clock of an unconfigured map (forgetting off, tick 0).
+    const OFF: Self;
+    /// The stamp of tick 0.
+    const ZERO: Self::Stamp;
+    /// How the map forgets now (`None`: it does not).
+    fn forgetting(&self) -> Option<Forgetting>;
+    /// Forget with `forgetting` from now on; `false` if this clock cannot (a [`Timeless`] map).
+    fn set_forgetting(&mut self, forgetting: Option<Forgetting>) -> bool;
+    /// The stamp of a change made now.
+    fn now(&self) -> Self::Stamp;
+    /// Move the clock to tick `now` (never backwards: an earlier tick is ignored).
+    fn set_time(&mut self, now: u32);
+    /// A stamp as a tick of the mission clock (0 for a timeless map).
+    fn tick(stamp: Self::Stamp) -> u32;
+}
+
+/// The clock of a map that never forgets: nothing stored, nothing computed.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Timeless;
+
+impl MapClock for Timeless {
+    type Stamp = ();
+    const OFF: Self = Self;
+    const ZERO: () = ();
+    #[inline(always)]
+    fn forgetting(&self) -> Option<Forgetting> {
+        None
+    }
+    fn set_forgetting(&mut self, forgetting: Option<Forgetting>) -> bool {
+        forgetting.is_none()
+    }
+    #[inline(always)]
+    fn now(&self) {}
+    #[inline(always)]
+    fn set_time(&mut self, _now: u32) {}
+    #[inline(always)]
+    fn tick(_stamp: ()) -> u32 {
+        0
+    }
+}
+
+/// The clock of a map that can forget: the mission tick and the half-life (off until set).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Fading {
+    forgetting: Option<Forgetting>,
+    now: u32,
+}
+
+impl MapClock for Fading {
+    type Stamp = u32;
+    const OFF: Self = Self {
+        forgetting: None,
+        now: 0,
+    };
+    const ZERO: u32 = 0;
+    #[inline]
+    fn forgetting(&self) -> Option<Forgetting> {
+        self.forgetting
+    }
+    fn set_forgetting(&mut self, forgetting: Option<Forgetting>) -> bool {
+        self.forgetting = forgetting;
+        true
+    }
+    #[inline]
+    fn now(&self) -> u32 {
+        self.now
+    }
+    fn set_time(&mut self, now: u32) {
+        self.now = self.now.max(now);
+    }
+    #[inline]
+    fn tick(stamp: u32) -> u32 {
+        stamp
+    }
+}
+
+/// `obs`, stamped `from`, brought forward to `to` under `clock` (unchanged when the clock does not forget
+/// or `to` is not later).
+#[inline]
+pub fn bring_forward<C: MapClock, const D: usize>(
+    clock: &C,
+    obs: &mut ObsStats<D>,
+    from: C::Stamp,
+    to: C::Stamp,
+) {
+    if let Some(f) = clock.forgetting() {
+        let age = C::tick(to).saturating_sub(C::tick(from));
+        if age > 0 {
+            obs.decay(f.factor(age));
+        }
     }
 }
 

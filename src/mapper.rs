@@ -18,6 +18,7 @@
 //! the base station's map follows the robot while it works. A program that needs every eviction's exact
 //! statistics (an evaluation, a log) taps them ([`EvictionTap`]) instead of assembling a second robot.
 
+use crate::forget::{MapClock, Timeless};
 use crate::frame::{AckReader, FrameEncoder, TickError, TickReport};
 use crate::local_map::{LocalMap, HOT_VOXELS};
 use crate::sink::Evicted;
@@ -82,8 +83,9 @@ pub struct Mapper<
     const QB: usize,
     const N: usize,
     const H: usize = HOT_VOXELS,
+    C: MapClock = Timeless,
 > {
-    map: LocalMap<D, CAP, P, H>,
+    map: LocalMap<D, CAP, P, H, C>,
     encoder: FrameEncoder<D, QB, N>,
     acks: AckReader,
     /// Where the next live round starts (a slot of the map).
@@ -97,13 +99,14 @@ impl<
         const QB: usize,
         const N: usize,
         const H: usize,
-    > Mapper<D, CAP, P, QB, N, H>
+        C: MapClock,
+    > Mapper<D, CAP, P, QB, N, H, C>
 {
     /// The mapper's RAM (its `static`): the map's [`LocalMap::RAM_BYTES`] (voxels, hot tier, kernel table)
     /// plus the encoder (queue `QB`, two frame buffers of `N`, state), the acknowledgement reader and the
     /// live-update hand, rounded to the alignment. Equals `size_of::<Self>()` (tested), so a firmware
     /// checks its budget at compile time: `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
-    pub const RAM_BYTES: usize = (LocalMap::<D, CAP, P, H>::RAM_BYTES
+    pub const RAM_BYTES: usize = (LocalMap::<D, CAP, P, H, C>::RAM_BYTES
         + core::mem::size_of::<FrameEncoder<D, QB, N>>()
         + core::mem::size_of::<AckReader>()
         + core::mem::size_of::<usize>())
@@ -131,6 +134,12 @@ impl<
         self.map
             .set_cooling(setup.cooling)
             .map_err(SetupError::Map)?;
+        // Only with the `forgetting` feature: the link must carry stamps for a map that forgets (without
+        // it a mapper never forgets, and none of this is linked).
+        #[cfg(feature = "forgetting")]
+        self.map
+            .set_forgetting(setup.forgetting)
+            .map_err(SetupError::Map)?;
         // Without the feature only all-ones weights exist: one byte compared, no weighing code linked.
         #[cfg(feature = "mean-weights")]
         self.map
@@ -152,7 +161,10 @@ impl<
 
     /// Start a sensor frame seen from `pose` (sensor → map): the window follows the sensor (voxels left
     /// behind are queued for the link). Add the frame's points through the returned [`SensorFrame`].
-    pub fn begin_frame(&mut self, pose: &Isometry3<f32>) -> SensorFrame<'_, D, CAP, P, QB, N, H> {
+    pub fn begin_frame(
+        &mut self,
+        pose: &Isometry3<f32>,
+    ) -> SensorFrame<'_, D, CAP, P, QB, N, H, NoTap, C> {
         self.begin_frame_tapped(pose, NoTap)
     }
 
@@ -161,7 +173,7 @@ impl<
         &mut self,
         pose: &Isometry3<f32>,
         mut tap: T,
-    ) -> SensorFrame<'_, D, CAP, P, QB, N, H, T> {
+    ) -> SensorFrame<'_, D, CAP, P, QB, N, H, T, C> {
         let t = pose.translation.vector;
         let mut sink = Tapped {
             sink: &mut self.encoder,
@@ -329,8 +341,15 @@ impl<
         self.encoder.capacity()
     }
 
+    /// Set the mission clock ([`crate::forget`]'s clock rule; a map that never forgets ignores it): the
+    /// points of frames from now on are stamped `now`, reads decay to it. Call it once per sensor frame
+    /// (or whenever the clock advances), before the frame's points.
+    pub fn set_time(&mut self, now: u32) {
+        self.map.set_time(now);
+    }
+
     /// The map (voxels, posteriors, counters, rejections).
-    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H, C> {
         &self.map
     }
     /// The encoder (queue, link statistics).
@@ -350,6 +369,9 @@ impl<
 
 #[cfg(test)]
 mod link_tests;
+
+#[cfg(all(test, feature = "forgetting"))]
+mod forget_tests;
 
 #[cfg(test)]
 mod tests;

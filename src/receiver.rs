@@ -87,7 +87,8 @@ pub struct Refusals {
     /// Configuration id is not the map's, a session header with another configuration, or no
     /// configuration yet.
     pub wrong_config: u32,
-    /// A summary in the frame was invalid (bad key, count): the whole frame was refused.
+    /// A summary in the frame was invalid (bad key, count, weight; stamped in a session that does not forget
+    /// or unstamped in one that does): the whole frame was refused.
     pub invalid_voxel: u32,
     /// Frame received before (by sequence number).
     pub duplicate_frames: u32,
@@ -328,7 +329,12 @@ impl<const D: usize, const N: usize> Receiver<D, N> {
             return refuse(&mut self.refusals, Refusal::WrongConfig, None);
         }
         if let Message::Voxels(batch) = message {
-            if batch.iter::<D>(config.codec).any(|s| s.is_err()) {
+            // A session that forgets sends stamped summaries only, one that does not never does.
+            let forgets = config.forgetting().is_some();
+            if batch
+                .iter::<D>(config.codec)
+                .any(|s| s.map_or(true, |s| s.time.is_some() != forgets))
+            {
                 return refuse(&mut self.refusals, Refusal::InvalidVoxel, None);
             }
         }

@@ -19,6 +19,9 @@ pub struct Evicted<'a, const D: usize> {
     /// (observed, forgotten, observed again) carries two different numbers. Observations of different
     /// residencies are disjoint and must be merged, not replaced.
     pub residency: u32,
+    /// Tick of the voxel's last change when its map forgets ([`crate::forget`]): `obs` are as of then. 0
+    /// in a map that never forgets.
+    pub time: u32,
 }
 
 /// The sink refused a voxel (no room right now); the map keeps it.

@@ -82,15 +82,20 @@ fn base_station_db(rng: &mut Rng, ctl: u8, n: usize, flips: usize) -> Vec<u8> {
     out
 }
 
-/// `roundtrip`: two codec bytes, then `n` records (three i32 key words, n, m, S).
-fn roundtrip(rng: &mut Rng, n: usize) -> Vec<u8> {
+/// `roundtrip`: two codec bytes (bit 7 of the second: a session that forgets), then `n` records (three
+/// i32 key words, n, m, S; a forgetting session's weights faded to fractions).
+fn roundtrip(rng: &mut Rng, n: usize, forgets: bool) -> Vec<u8> {
     const D: usize = 8;
-    let mut out = vec![6, 3];
+    let mut out = vec![6, 3 | if forgets { 0x80 } else { 0 }];
     for i in 0..n as i32 {
         for k in [i * 4, (i / 3) * 4 - 8, 12] {
             out.extend(k.to_le_bytes());
         }
-        put_stats(&mut out, &stats::<D>(rng));
+        let mut s = stats::<D>(rng);
+        if forgets {
+            s.decay(0.37);
+        }
+        put_stats(&mut out, &s);
     }
     out
 }
@@ -117,15 +122,22 @@ fn map_integrate(rng: &mut Rng, batches: usize) -> Vec<u8> {
 
 /// `frame_decoder`: a chunk size, then a robot's whole session as it goes over the link (D = 64, the
 /// default codec: the decoder target parses every summary).
-fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize) -> Vec<u8> {
+fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize, forgets: bool) -> Vec<u8> {
     const D: usize = 64;
-    let config = SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, 0);
+    let forgetting = forgets.then(|| latentbki::forget::Forgetting::new(40.0).unwrap());
+    let config = SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, 0)
+        .with_forgetting(forgetting);
     let mut enc = FrameEncoder::<D, 4096, 512>::new(config, EncoderSettings::new(4, 8)).unwrap();
     let mut out = Buf(Vec::new());
     let mut live = Vec::new();
     for i in 0..n {
         let key = VoxelKey::new(i as i32 % 7, i as i32 / 7, 1);
-        let obs = stats::<D>(rng);
+        let mut obs = stats::<D>(rng);
+        // A forgetting session's voxels: faded weights, stamped with their tick.
+        let time = if forgets { 1000 + 3 * i as u32 } else { 0 };
+        if forgets {
+            obs.decay(0.61);
+        }
         if i % 3 == 0 {
             live.push((key, obs));
         } else if enc
@@ -133,6 +145,7 @@ fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize) -> Vec<u8> {
                 key,
                 obs: &obs,
                 residency: i as u32,
+                time,
             })
             .is_err()
         {
@@ -143,6 +156,7 @@ fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize) -> Vec<u8> {
                 key: *key,
                 obs,
                 residency: 0,
+                time,
             });
             enc.tick(&mut out, 600, live_now).unwrap();
         }
@@ -206,20 +220,32 @@ fn main() -> std::io::Result<()> {
             "session-damaged",
             base_station_db(&mut rng, 40, 40, 6),
         ),
-        ("roundtrip", "forty-voxels", roundtrip(&mut rng, 40)),
+        ("roundtrip", "forty-voxels", roundtrip(&mut rng, 40, false)),
         ("map_integrate", "street", map_integrate(&mut rng, 12)),
         (
             "frame_decoder",
             "session-whole",
-            frame_decoder(&mut rng, 255, 60),
+            frame_decoder(&mut rng, 255, 60, false),
         ),
         (
             "frame_decoder",
             "session-chunked",
-            frame_decoder(&mut rng, 7, 30),
+            frame_decoder(&mut rng, 7, 30, false),
         ),
         ("ack_reader", "acks-whole", ack_reader(&mut rng, 255, 24)),
         ("ack_reader", "acks-bytewise", ack_reader(&mut rng, 1, 12)),
+        // Forgetting (stamped summaries, the half-life in the header): last, so the seeds above keep
+        // their bytes.
+        (
+            "roundtrip",
+            "forty-voxels-forgetting",
+            roundtrip(&mut rng, 40, true),
+        ),
+        (
+            "frame_decoder",
+            "session-forgetting",
+            frame_decoder(&mut rng, 255, 40, true),
+        ),
     ];
     for (target, name, bytes) in seeds {
         std::fs::create_dir_all(dir.join(target))?;

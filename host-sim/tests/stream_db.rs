@@ -234,6 +234,7 @@ fn values_the_codec_clamps_are_counted() {
                 key: VoxelKey::new(i as i32, 0, 0),
                 obs: s,
                 residency: i as u32,
+                time: 0,
             })
             .unwrap();
     }

@@ -55,6 +55,7 @@ fn stream(
                     key,
                     obs: &s,
                     residency,
+                    time: 0,
                 })
                 .is_ok()
             {

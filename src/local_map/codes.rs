@@ -14,6 +14,7 @@
 
 use super::LocalMap;
 use crate::config::ConfigError;
+use crate::forget::MapClock;
 use crate::quant::MeanWeights;
 
 /// The weights a map keeps.
@@ -45,7 +46,9 @@ impl Weights {
     }
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// Weigh the mean codes of this map's voxels per dimension (after [`Self::configure`], before the
     /// first point: a map that holds voxels refuses other weights, since their codes are on its own).
     /// [`MeanWeights::ONES`] is always taken; others need the `mean-weights` feature, valid breakpoints for

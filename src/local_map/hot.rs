@@ -3,6 +3,8 @@
 //! re-encoded once per visit, not once per point or batch.
 
 use super::{Hot, LocalMap, CHANGED, REFERENCED};
+use crate::forget::bring_forward;
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::{CodeSums, ObsStats};
 use crate::quant::Cooling;
@@ -71,7 +73,7 @@ impl<const D: usize> Acc<D> {
     }
 
     /// Whether it holds nothing.
-    fn is_empty(&self) -> bool {
+    pub(super) fn is_empty(&self) -> bool {
         match self {
             Self::Float(o) => o.is_empty(),
             Self::Codes(c) => c.count == 0,
@@ -79,7 +81,9 @@ impl<const D: usize> Acc<D> {
     }
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// Merge hot entry `h` into its slot's codes (one decode, one exact merge, one encode) and mark the slot
     /// cold. The entry itself is left for the caller to reuse or remove.
     pub(super) fn cool(&mut self, h: usize) {
@@ -89,6 +93,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         let Some(slot) = self.slots.get_mut(s) else {
             return;
         };
+        // Forgetting: the codes are as of their stamp, the hot statistics as of theirs (never earlier), so
+        // the codes fade to the hot stamp before the exact merge ([`crate::forget::Stamped::merge`]).
+        let older = self.clock.forgetting().is_some() && slot.stamp != hot.stamp;
         let weighed = !self.mean_weights.is_ones();
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
@@ -97,8 +104,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
                 slot.codes = slot.codes.reencode(o, &mut self.dither)
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
-            // operation. Otherwise they merge in f32 below.
-            (Acc::Codes(c), _) if fixed => {
+            // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
+            (Acc::Codes(c), _) if fixed && !older => {
                 slot.codes = slot
                     .codes
                     .merge_codes_fixed(c, &self.int8_fix, &mut self.dither)
@@ -106,6 +113,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             (acc, seen) if !acc.is_empty() => {
                 if seen {
                     slot.codes.decode_into(&mut self.scratch);
+                    bring_forward(&self.clock, &mut self.scratch, slot.stamp, hot.stamp);
                     self.mean_weights.apply(&mut self.scratch.mean, false);
                 } else {
                     self.scratch = ObsStats::EMPTY;
@@ -117,6 +125,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
                         .reencode(&slot.codes, &self.scratch, &mut self.dither);
             }
             _ => {}
+        }
+        if !hot.acc.is_empty() {
+            slot.stamp = hot.stamp;
         }
         slot.hot = 0;
         slot.flags |= REFERENCED;
@@ -188,6 +199,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             self.cool(h);
             h
         };
+        let stamp = self.clock.now();
         if let Some(e) = self.hot.get_mut(h) {
             *e = Hot {
                 acc: Acc::Float(ObsStats::EMPTY),
@@ -195,11 +207,36 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
                 slot: s as u16,
                 referenced: true,
                 live_sent: 0.0,
+                stamp,
             };
         }
         if let Some(slot) = self.slots.get_mut(s) {
             slot.hot = h as u8 + 1;
         }
         h
+    }
+
+    /// Bring hot entry `h` to the clock's tick before a point goes in (forgetting only; nothing in a map
+    /// that never forgets): what it holds fades by its age, int8 sums turning into f32 statistics first
+    /// (integer sums cannot be weighted). Once per voxel and tick, not per point.
+    #[inline]
+    pub(super) fn hot_to_now(&mut self, h: usize) {
+        let Some(f) = self.clock.forgetting() else {
+            return;
+        };
+        let now = self.clock.now();
+        let scale = self.int8_scale;
+        let Some(e) = self.hot.get_mut(h) else { return };
+        let age = C::tick(now).saturating_sub(C::tick(e.stamp));
+        if age == 0 {
+            return;
+        }
+        if !e.acc.is_empty() {
+            e.acc.make_float(scale);
+            if let Acc::Float(o) = &mut e.acc {
+                o.decay(f.factor(age));
+            }
+        }
+        e.stamp = now;
     }
 }

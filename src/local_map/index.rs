@@ -4,6 +4,7 @@
 
 use super::window::{unwrap, wrap};
 use super::LocalMap;
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 
 /// Spatially clustered keys need a well-mixed hash for linear probing: combine, then murmur3's finaliser.
@@ -19,7 +20,9 @@ fn hash(k: VoxelKey) -> u32 {
     h ^ (h >> 16)
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     // Table positions come from `home` and `next`, always below TABLE; `get` keeps bounds-check panics
     // out of the firmware (an out-of-range position would read as empty and ignore writes).
     #[inline]

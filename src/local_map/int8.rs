@@ -4,13 +4,16 @@
 use super::LocalMap;
 use crate::batch::{locate_key, Rejection};
 use crate::config::ConfigError;
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::code_in_range;
 use crate::quant::{Cooling, Int8Fix};
 use crate::sink::EvictionSink;
 use nalgebra::Isometry3;
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// Declare the scale of int8 features: a code c stands for the feature value y = `scale` · c. Points
     /// with int8 features are refused (counted as [`Rejection::FeatureScale`]) until a valid scale is set,
     /// and after an invalid one (NaN, infinite, ≤ 0, or so large that 127·√D·scale exceeds
@@ -134,6 +137,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             return Err(Rejection::CodeOutOfRange);
         }
         let h = self.hot_entry(key, sink)?;
+        self.hot_to_now(h);
         if self.hot_is_full(h) {
             self.restart_hot(h);
         }

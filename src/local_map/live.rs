@@ -5,10 +5,12 @@
 //! when it was last streamed; a cold one carries a flag set when it cooled with points not yet streamed.
 //! The link walks the slots like a ring from where it stopped, so every changed voxel gets its turn.
 
-use super::window::unwrap;
 use super::{LiveVoxel, LocalMap, CHANGED, OCCUPIED};
+use crate::forget::MapClock;
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// Whether slot `s` holds a voxel with points the link has not streamed.
     fn changed(&self, s: usize) -> bool {
         let Some(slot) = self.slots.get(s) else {
@@ -38,14 +40,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         (0..CAP)
             .map(move |i| (from + i) % CAP)
             .filter(|&s| self.changed(s))
-            .filter_map(|s| {
-                let slot = self.slots.get(s)?;
-                Some(LiveVoxel {
-                    key: unwrap(slot.key, self.centre),
-                    obs: self.decode_slot(slot),
-                    residency: slot.residency,
-                })
-            })
+            .filter_map(|s| self.slots.get(s).map(|slot| self.live_voxel(slot)))
     }
 
     /// The link streamed slot `s` as it is now.

@@ -33,6 +33,7 @@
 
 use crate::batch::{locate, Rejection, RejectionCounts};
 use crate::config::{ConfigError, MapConfig, Prior};
+use crate::forget::{Forgetting, MapClock, Timeless};
 use crate::kernel::KernelLut;
 use crate::key::{to_map_frame, VoxelKey};
 use crate::obs::ObsStats;
@@ -52,7 +53,7 @@ const REFERENCED: u8 = 2;
 const CHANGED: u8 = 4;
 
 #[derive(Clone, Copy, Debug)]
-struct Slot<const D: usize, const P: usize> {
+struct Slot<const D: usize, const P: usize, T: Copy> {
     /// The statistics observed before the voxel last turned hot (its hot entry holds the rest).
     codes: QuantVoxel<D, P>,
     key: [i16; 3],
@@ -63,21 +64,27 @@ struct Slot<const D: usize, const P: usize> {
     /// apart by it, so a 16-bit number would repeat after 65,536 allocations and a later residency of the
     /// same voxel could be taken for an earlier, closed one and dropped.
     residency: u32,
+    /// When `codes` last changed ([`crate::forget`]): `()` in a map that never forgets, so it costs no byte
+    /// there.
+    stamp: T,
 }
 
-impl<const D: usize, const P: usize> Slot<D, P> {
-    const EMPTY: Self = Self {
-        codes: QuantVoxel::EMPTY,
-        key: [0; 3],
-        hot: 0,
-        flags: 0,
-        residency: 0,
-    };
+impl<const D: usize, const P: usize, T: Copy> Slot<D, P, T> {
+    const fn empty(stamp: T) -> Self {
+        Self {
+            codes: QuantVoxel::EMPTY,
+            key: [0; 3],
+            hot: 0,
+            flags: 0,
+            residency: 0,
+            stamp,
+        }
+    }
 }
 
 /// A voxel being observed now: its new points in f32, or as exact integer sums of int8 codes.
 #[derive(Clone, Copy, Debug)]
-struct Hot<const D: usize> {
+struct Hot<const D: usize, T: Copy> {
     acc: hot::Acc<D>,
     key: VoxelKey,
     slot: u16,
@@ -85,16 +92,21 @@ struct Hot<const D: usize> {
     /// Its point count when it was last streamed as a live update (0: not yet): a hot voxel has changed
     /// since if its count differs — read per tick, never written per point.
     live_sent: f32,
+    /// When `acc` last changed (`()` in a map that never forgets).
+    stamp: T,
 }
 
-impl<const D: usize> Hot<D> {
-    const EMPTY: Self = Self {
-        acc: hot::Acc::Float(ObsStats::EMPTY),
-        key: VoxelKey::new(0, 0, 0),
-        slot: 0,
-        referenced: false,
-        live_sent: 0.0,
-    };
+impl<const D: usize, T: Copy> Hot<D, T> {
+    const fn empty(stamp: T) -> Self {
+        Self {
+            acc: hot::Acc::Float(ObsStats::EMPTY),
+            key: VoxelKey::new(0, 0, 0),
+            slot: 0,
+            referenced: false,
+            live_sent: 0.0,
+            stamp,
+        }
+    }
 }
 
 /// What the map did so far, for logs and tests.
@@ -118,25 +130,38 @@ pub struct Counters {
 pub struct LiveVoxel<const D: usize> {
     /// Its key.
     pub key: VoxelKey,
-    /// Its observation statistics (quantized part decoded, hot part merged).
+    /// Its observation statistics (quantized part decoded, hot part merged) as of `time`.
     pub obs: ObsStats<D>,
     /// Its residency number (see [`crate::sink::Evicted::residency`]).
     pub residency: u32,
+    /// Tick of its last change ([`crate::forget`]; 0 in a map that never forgets): `obs` are as of then,
+    /// and a reader decays them to its own tick by the clock rule.
+    pub time: u32,
 }
 
 /// A fixed-capacity map of `CAP` voxels of dimension `D` holding quantized observation statistics;
 /// `P` = [`crate::quant::packed_len`]`(D)`; `H` hot voxels accumulate in f32.
 ///
+/// `C` is how it keeps time ([`crate::forget`]): [`Timeless`] (the default) never forgets and stores no
+/// stamp; [`crate::forget::Fading`] keeps the tick of each voxel's last change (4 B more per voxel) and
+/// forgets once given a half-life ([`Self::set_forgetting`]).
+///
 /// Large: place it in a `static` (see [`LocalMap::EMPTY`] and [`LocalMap::configure`]) or a `Box` on a host.
-pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: usize = HOT_VOXELS> {
+pub struct LocalMap<
+    const D: usize,
+    const CAP: usize,
+    const P: usize,
+    const H: usize = HOT_VOXELS,
+    C: MapClock = Timeless,
+> {
     config: MapConfig,
     lut: KernelLut,
-    slots: [Slot<D, P>; CAP],
+    slots: [Slot<D, P, C::Stamp>; CAP],
     index: [[u16; CAP]; 2],
     len: usize,
     free_hand: usize,
     clock_hand: usize,
-    hot: [Hot<D>; H],
+    hot: [Hot<D, C::Stamp>; H],
     hot_len: usize,
     hot_hand: usize,
     /// The hot entry the previous point went to (sensors return points in scan order).
@@ -160,6 +185,8 @@ pub struct LocalMap<const D: usize, const CAP: usize, const P: usize, const H: u
     next_residency: u32,
     rejections: RejectionCounts,
     counters: Counters,
+    /// The mission tick and the half-life (a zero-size nothing in a [`Timeless`] map).
+    clock: C,
 }
 
 mod codes;
@@ -171,7 +198,9 @@ mod read;
 mod slots;
 mod window;
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     const TABLE: usize = 2 * CAP;
     const CAP_OK: () = assert!(
         CAP > H && CAP < u16::MAX as usize && H > 0 && H < u8::MAX as usize,
@@ -184,12 +213,12 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     pub const EMPTY: Self = Self {
         config: MapConfig::UNCONFIGURED,
         lut: KernelLut::EMPTY,
-        slots: [Slot::EMPTY; CAP],
+        slots: [Slot::empty(C::ZERO); CAP],
         index: [[0; CAP]; 2],
         len: 0,
         free_hand: 0,
         clock_hand: 0,
-        hot: [Hot::EMPTY; H],
+        hot: [Hot::empty(C::ZERO); H],
         hot_len: 0,
         hot_hand: 0,
         last_hot: 0,
@@ -221,6 +250,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             slots_written: 0,
             cooled: 0,
         },
+        clock: C::OFF,
     };
 
     /// (Re)configure in place: clears the map. `window_radius` is in metres around the robot.
@@ -238,7 +268,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         }
         self.config = config;
         self.dither = Dither::new(0x5EED_1234);
-        self.slots.iter_mut().for_each(|s| *s = Slot::EMPTY);
+        self.slots
+            .iter_mut()
+            .for_each(|s| *s = Slot::empty(C::ZERO));
         self.index = [[0; CAP]; 2];
         self.len = 0;
         self.free_hand = 0;
@@ -254,6 +286,30 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.rejections = RejectionCounts::default();
         self.counters = Counters::default();
         Ok(())
+    }
+
+    /// Forget with `forgetting` from now on (`None`: never, the default). Statistics already held fade from
+    /// the tick they last changed. Kept by [`Self::configure`]. A [`Timeless`] map refuses anything but
+    /// `None` ([`ConfigError::Forgetting`]): it keeps no stamps.
+    pub fn set_forgetting(&mut self, forgetting: Option<Forgetting>) -> Result<(), ConfigError> {
+        if self.clock.set_forgetting(forgetting) {
+            Ok(())
+        } else {
+            Err(ConfigError::Forgetting)
+        }
+    }
+    /// How the map forgets (`None`: it does not).
+    pub fn forgetting(&self) -> Option<Forgetting> {
+        self.clock.forgetting()
+    }
+    /// Set the mission clock ([`crate::forget`]'s clock rule): points from now on are stamped `now` and
+    /// reads decay to it. Never backwards (an earlier tick is ignored); nothing in a [`Timeless`] map.
+    pub fn set_time(&mut self, now: u32) {
+        self.clock.set_time(now);
+    }
+    /// The mission tick (0 in a [`Timeless`] map).
+    pub fn time(&self) -> u32 {
+        C::tick(self.clock.now())
     }
 
     /// The map's configuration.
@@ -381,6 +437,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     ) -> Result<(), Rejection> {
         let (key, _) = locate(&self.lut, position, feature)?;
         let h = self.hot_entry(key, sink)?;
+        self.hot_to_now(h);
         let scale = self.int8_scale;
         let e = self.hot.get_mut(h).ok_or(Rejection::NoRoom)?;
         e.acc.add_f32(feature, scale);
@@ -424,13 +481,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
 
     /// Bytes one voxel costs: its slot plus its share of the index.
     pub const BYTES_PER_VOXEL: usize =
-        core::mem::size_of::<Slot<D, P>>() + 2 * core::mem::size_of::<u16>();
+        core::mem::size_of::<Slot<D, P, C::Stamp>>() + 2 * core::mem::size_of::<u16>();
 
     /// Bytes one entry of the full-precision (hot) tier costs.
-    pub const BYTES_PER_HOT_VOXEL: usize = core::mem::size_of::<Hot<D>>();
+    pub const BYTES_PER_HOT_VOXEL: usize = core::mem::size_of::<Hot<D, C::Stamp>>();
 
     /// Bytes of everything else: the kernel table, the decoding scratch, hands and counters.
-    pub const FIXED_BYTES: usize = core::mem::size_of::<LocalMap<D, 0, P, 0>>();
+    pub const FIXED_BYTES: usize = core::mem::size_of::<LocalMap<D, 0, P, 0, C>>();
 
     /// The map's RAM: `CAP` × [`Self::BYTES_PER_VOXEL`] + `H` × [`Self::BYTES_PER_HOT_VOXEL`] +
     /// [`Self::FIXED_BYTES`]; equals `size_of::<Self>()` (tested).

@@ -3,11 +3,15 @@
 
 use super::window::unwrap;
 use super::{LiveVoxel, LocalMap, Slot, OCCUPIED};
+use crate::forget::bring_forward;
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::{gather, ObsLookup, ObsStats};
 use crate::stats::VoxelStats;
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// The observation statistics of a voxel, if held.
     pub fn get(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         if !Self::wrap_safe(key, self.centre) {
@@ -17,28 +21,50 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         self.slots.get(s).map(|slot| self.decode_slot(slot))
     }
 
-    pub(super) fn decode_slot(&self, slot: &Slot<D, P>) -> ObsStats<D> {
+    /// A slot's statistics as read now: as of its last change, faded to the clock when forgetting.
+    pub(super) fn decode_slot(&self, slot: &Slot<D, P, C::Stamp>) -> ObsStats<D> {
+        let (mut obs, stamp) = self.stamped_slot(slot);
+        bring_forward(&self.clock, &mut obs, stamp, self.clock.now());
+        obs
+    }
+
+    /// A slot's statistics as of its last change, and that change's stamp: the codes faded to the hot
+    /// stamp (never earlier) and the hot part merged.
+    pub(super) fn stamped_slot(&self, slot: &Slot<D, P, C::Stamp>) -> (ObsStats<D>, C::Stamp) {
         let mut obs = slot.codes.decode();
         self.mean_weights.apply(&mut obs.mean, false);
+        let mut stamp = slot.stamp;
         if let Some(hot) = usize::from(slot.hot)
             .checked_sub(1)
             .and_then(|h| self.hot.get(h))
         {
+            if !hot.acc.is_empty() {
+                bring_forward(&self.clock, &mut obs, slot.stamp, hot.stamp);
+                stamp = hot.stamp;
+            }
             hot.acc.merge_into(&mut obs, self.int8_scale);
         }
-        obs
+        (obs, stamp)
     }
 
-    /// Every held voxel, decoded.
+    /// A slot as the link streams it: statistics as of its last change, with that tick.
+    pub(super) fn live_voxel(&self, slot: &Slot<D, P, C::Stamp>) -> LiveVoxel<D> {
+        let (obs, stamp) = self.stamped_slot(slot);
+        LiveVoxel {
+            key: unwrap(slot.key, self.centre),
+            obs,
+            residency: slot.residency,
+            time: C::tick(stamp),
+        }
+    }
+
+    /// Every held voxel, decoded, as of its last change ([`LiveVoxel::time`]; a map that forgets: read
+    /// through [`Self::get`] to see them faded to now).
     pub fn iter(&self) -> impl Iterator<Item = LiveVoxel<D>> + '_ {
         self.slots
             .iter()
             .filter(|s| s.flags & OCCUPIED != 0)
-            .map(|s| LiveVoxel {
-                key: unwrap(s.key, self.centre),
-                obs: self.decode_slot(s),
-                residency: s.residency,
-            })
+            .map(|s| self.live_voxel(s))
     }
 
     /// The voxels being observed now (the hot ones), decoded: what a link with spare bytes streams as live
@@ -48,11 +74,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             .iter()
             .take(self.hot_len)
             .filter_map(|h| self.slots.get(usize::from(h.slot)))
-            .map(|s| LiveVoxel {
-                key: unwrap(s.key, self.centre),
-                obs: self.decode_slot(s),
-                residency: s.residency,
-            })
+            .map(|s| self.live_voxel(s))
     }
 
     /// The posterior of any voxel, gathered from the held voxels in the kernel's reach (the prior if none).
@@ -102,8 +124,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
     }
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> ObsLookup<D>
-    for LocalMap<D, CAP, P, H>
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock> ObsLookup<D>
+    for LocalMap<D, CAP, P, H, C>
 {
     fn observed(&self, key: VoxelKey) -> Option<ObsStats<D>> {
         self.get(key)

@@ -4,29 +4,40 @@
 
 use super::window::{unwrap, wrap};
 use super::{LocalMap, Slot, OCCUPIED, REFERENCED};
+use crate::forget::bring_forward;
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use crate::quant::QuantVoxel;
 use crate::sink::{Evicted, EvictionSink};
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     // Slot numbers come from the map's own index and hands, so they are always below CAP; the accessors
     // below still go through `get` so that no bounds-check panic is linked into the hot path (the
     // firmware's `panic-never` build proves it). An out-of-range number reads as an empty slot.
 
-    /// The voxel's statistics, quantized part decoded and hot part merged, into `self.scratch`.
-    pub(super) fn gather_slot(&mut self, s: usize) {
+    /// The voxel's statistics, quantized part decoded and hot part merged, into `self.scratch`, as of the
+    /// returned stamp (its last change).
+    pub(super) fn gather_slot(&mut self, s: usize) -> C::Stamp {
         let Some(slot) = self.slots.get(s) else {
             self.scratch = ObsStats::EMPTY;
-            return;
+            return C::ZERO;
         };
         slot.codes.decode_into(&mut self.scratch);
         self.mean_weights.apply(&mut self.scratch.mean, false);
+        let mut stamp = slot.stamp;
         if let Some(h) = usize::from(slot.hot).checked_sub(1) {
             if let Some(hot) = self.hot.get(h) {
+                if !hot.acc.is_empty() {
+                    bring_forward(&self.clock, &mut self.scratch, slot.stamp, hot.stamp);
+                    stamp = hot.stamp;
+                }
                 hot.acc.merge_into(&mut self.scratch, self.int8_scale);
             }
         }
+        stamp
     }
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
@@ -35,12 +46,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             return false;
         };
         let key = unwrap(slot.key, self.centre);
-        self.gather_slot(s);
+        let stamp = self.gather_slot(s);
         if !self.scratch.is_empty() {
             let evicted = Evicted {
                 key,
                 obs: &self.scratch,
                 residency: slot.residency,
+                time: C::tick(stamp),
             };
             if sink.evict(evicted).is_err() {
                 self.counters.refused = self.counters.refused.saturating_add(1);
@@ -55,7 +67,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             self.index_remove(pos);
         }
         if let Some(freed) = self.slots.get_mut(s) {
-            *freed = Slot::EMPTY;
+            *freed = Slot::empty(C::ZERO);
         }
         self.len -= 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
@@ -105,6 +117,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
             hot: 0,
             flags: OCCUPIED | REFERENCED,
             residency: self.next_residency,
+            stamp: self.clock.now(),
         };
         self.next_residency = self.next_residency.wrapping_add(1);
         self.index_insert(k, s);

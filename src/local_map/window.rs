@@ -3,6 +3,7 @@
 //! outside in place — it reads every key but writes only the evicted slots.
 
 use super::{LocalMap, OCCUPIED};
+use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::sink::EvictionSink;
 
@@ -15,16 +16,41 @@ pub(super) fn unwrap(w: [i16; 3], centre: VoxelKey) -> VoxelKey {
     VoxelKey::new(d(w[0], centre.x), d(w[1], centre.y), d(w[2], centre.z))
 }
 
-impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<D, CAP, P, H> {
+impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
+    LocalMap<D, CAP, P, H, C>
+{
     /// Whether a key is close enough to a centre to be stored wrapped (every axis within ±2¹⁵).
     pub(super) fn wrap_safe(k: VoxelKey, centre: VoxelKey) -> bool {
         let ok = |a: i32, c: i32| (i64::from(a) - i64::from(c)).abs() < 1 << 15;
         ok(k.x, centre.x) && ok(k.y, centre.y) && ok(k.z, centre.z)
     }
 
+    /// Whether a key is within the window's radius of its centre: [`VoxelKey::distance_squared`] ≤ r².
+    #[inline]
     pub(super) fn in_window(&self, k: VoxelKey) -> bool {
-        let r = i64::from(self.radius);
-        k.distance_squared(self.centre) <= r * r
+        #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+        return {
+            // The M4F's `smull`/`smlal`: the 64-bit form is the shortest there.
+            let r = i64::from(self.radius);
+            k.distance_squared(self.centre) <= r * r
+        };
+        #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+        return self.in_window_32(k);
+    }
+
+    /// [`Self::in_window`] in 32 bits (per point; a 64-bit product is a library call on v6-M, three
+    /// multiplies on RV32). An axis farther than r is outside at once; otherwise every |d| ≤ r ≤
+    /// [`super::MAX_WINDOW_VOXELS`] < 2¹⁵, so the d² sum stays below 3·2³⁰.
+    #[inline]
+    #[cfg_attr(all(target_arch = "arm", target_abi = "eabihf"), allow(dead_code))]
+    pub(super) fn in_window_32(&self, k: VoxelKey) -> bool {
+        let r = self.radius.unsigned_abs();
+        let (dx, dy, dz) = (
+            k.x.abs_diff(self.centre.x),
+            k.y.abs_diff(self.centre.y),
+            k.z.abs_diff(self.centre.z),
+        );
+        dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r
     }
 
     /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number
@@ -65,5 +91,44 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize> LocalMap<
         }
         self.stranded = stranded;
         evicted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_32_bit_window_test_is_the_64_bit_one() {
+        let mut map = LocalMap::<4, 4, 4, 2>::EMPTY;
+        let mut seed = 0x9E37_79B9u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for radius in [1, 2, 7, 100, super::super::MAX_WINDOW_VOXELS] {
+            map.radius = radius;
+            for _ in 0..20_000 {
+                let c = |v: u32| (v % (4 * radius as u32 + 3)) as i32 - 2 * radius - 1;
+                let far = |v: u32| v as i32 >> (v % 32);
+                map.centre = VoxelKey::new(far(next()), c(next()), 0);
+                let k = VoxelKey::new(
+                    map.centre.x.wrapping_add(c(next())),
+                    map.centre.y.wrapping_add(c(next())),
+                    far(next()) % 3 * c(next()),
+                );
+                let r = i64::from(radius);
+                let want = k.distance_squared(map.centre) <= r * r;
+                assert_eq!(
+                    map.in_window_32(k),
+                    want,
+                    "{k:?} {:?} r = {radius}",
+                    map.centre
+                );
+                assert_eq!(map.in_window(k), want);
+            }
+        }
     }
 }

@@ -5,6 +5,7 @@ use super::tap::{EvictionTap, NoTap, Tapped};
 use super::Mapper;
 use crate::batch::Rejection;
 use crate::fixed_pose::FixedPose;
+use crate::forget::{MapClock, Timeless};
 use crate::key::to_map_frame;
 use crate::local_map::LocalMap;
 use nalgebra::Isometry3;
@@ -36,8 +37,9 @@ pub struct SensorFrame<
     const N: usize,
     const H: usize,
     T = NoTap,
+    C: MapClock = Timeless,
 > {
-    pub(super) mapper: &'m mut Mapper<D, CAP, P, QB, N, H>,
+    pub(super) mapper: &'m mut Mapper<D, CAP, P, QB, N, H, C>,
     pub(super) pose: Isometry3<f32>,
     /// The pose in fixed point, made at the first integer point (`Some(None)`: not representable).
     pub(super) fixed: Option<Option<FixedPose>>,
@@ -52,7 +54,8 @@ impl<
         const N: usize,
         const H: usize,
         T: EvictionTap<D>,
-    > SensorFrame<'_, D, CAP, P, QB, N, H, T>
+        C: MapClock,
+    > SensorFrame<'_, D, CAP, P, QB, N, H, T, C>
 {
     /// Add sensor-frame points with their features (pairs; an unpaired tail is counted as
     /// [`Rejection::Unpaired`]). Returns how many the map took; the others are counted in
@@ -157,7 +160,7 @@ impl<
     }
 
     /// The map, read-only (e.g. for a report between chunks).
-    pub fn map(&self) -> &LocalMap<D, CAP, P, H> {
+    pub fn map(&self) -> &LocalMap<D, CAP, P, H, C> {
         &self.mapper.map
     }
 }

@@ -1,6 +1,8 @@
 //! What a [`Mapper`](super::Mapper) is configured with (a `const` [`Setup`]) and why it refuses one.
 
 use crate::config::{ConfigError, MapConfig};
+#[cfg(feature = "forgetting")]
+use crate::forget::Forgetting;
 use crate::frame::EncoderSettings;
 use crate::quant::{Cooling, MeanWeights};
 use crate::wire::{SessionConfig, SummaryCodec, WireError, NO_FEATURE_SPACE};
@@ -32,6 +34,11 @@ pub struct Setup {
     pub int8_scale: f32,
     /// How the map cools int8 sums ([`Cooling::NATIVE`] unless a host twin asks for a board's method).
     pub cooling: Cooling,
+    /// How the map forgets ([`crate::forget`]; `None`, the default: never). Needs a mapper with the
+    /// [`crate::forget::Fading`] clock; sent in the session header. (Only with the `forgetting` feature,
+    /// which the link needs to carry stamps.)
+    #[cfg(feature = "forgetting")]
+    pub forgetting: Option<Forgetting>,
     /// Per-dimension weights of the map's mean codes ([`MeanWeights::ONES`]: one step for all; others need
     /// the `mean-weights` feature and the f32 cooling). The robot's own storage: the wire does not carry them.
     pub mean_weights: MeanWeights,
@@ -48,8 +55,16 @@ impl Setup {
             feature_space: NO_FEATURE_SPACE,
             int8_scale: 0.0,
             cooling: Cooling::NATIVE,
+            #[cfg(feature = "forgetting")]
+            forgetting: None,
             mean_weights: MeanWeights::ONES,
         }
+    }
+
+    /// The same setup forgetting with `forgetting` (a mapper with the [`crate::forget::Fading`] clock).
+    #[cfg(feature = "forgetting")]
+    pub const fn with_forgetting(self, forgetting: Option<Forgetting>) -> Self {
+        Self { forgetting, ..self }
     }
 
     /// The same setup for a robot whose features are int8 codes: c stands for `scale` · c (e.g. an NPU's
@@ -77,8 +92,12 @@ impl Setup {
 
     /// The session configuration a `dim`-dimensional map sends in its header.
     pub fn session(&self, dim: usize) -> SessionConfig {
-        SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
-            .with_int8_scale(self.int8_scale)
+        let session = SessionConfig::new(&self.map, dim, self.codec, self.feature_space)
+            .with_int8_scale(self.int8_scale);
+        #[cfg(feature = "forgetting")]
+        return session.with_forgetting(self.forgetting);
+        #[cfg(not(feature = "forgetting"))]
+        return session;
     }
 }
 

@@ -14,10 +14,10 @@
 //! Only the targets without an FPU cool int8 sums this way ([`super::Cooling::NATIVE`]; a hosted build
 //! links both, so the QEMU boards' host twins compute what each board does). Measured with
 //! `boards/measure.sh` (depth frames, f = 3, i8 features, instructions per point): riscv32imac 3,393 →
-//! 1,824, thumbv6m 5,111 → 2,521 (2,667 since the an385 builds at opt-level 2 for flash), but the
+//! 1,824 (1,767 in one pass), thumbv6m 5,111 → 2,521 (2,667 at opt-level 2; 2,302 in one pass), but the
 //! Cortex-M4F 1,004 → 1,312 — its FPU runs the f32 cooling in fewer instructions than these integer passes
 //! (≈ 150 per dimension), so it keeps the f32 cooling (1,015). The
-//! per-dimension helpers are kept out of line (flash: riscv32imac stays under 64 KiB); on v6-M the 64-bit
+//! per-dimension helpers are kept out of line on riscv32imac (flash: it stays under 64 KiB); on v6-M the 64-bit
 //! products are built from 16-bit halves.
 
 use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
@@ -76,7 +76,21 @@ impl Int8Fix {
     }
 }
 
-inline_with_fpu! {
+/// The per-dimension steps of the cooling: one out-of-line copy on riscv32 without F (its flash is within a
+/// few hundred bytes of 64 KiB), inlined into the passes elsewhere (on v6-M the call and the spills around it
+/// cost more than the work: measured below).
+macro_rules! per_dim_step {
+    ($item:item) => {
+        #[cfg_attr(all(target_arch = "riscv32", not(target_feature = "f")), inline(never))]
+        #[cfg_attr(
+            not(all(target_arch = "riscv32", not(target_feature = "f"))),
+            inline(always)
+        )]
+        $item
+    };
+}
+
+per_dim_step! {
 /// One dimension's merged mean and the distance between the two means (both in code steps with
 /// [`MEAN_FRAC`] fraction bits), from the old mean code `q` on scale `sigma` (steps) and the sums' Σc: with
 /// x = Σc − n₁m₀ the merged mean is m₀ + x/n and d = x/n₁ (`rn`, `rn1`: 2³²/n, 2³²/n₁).
@@ -91,7 +105,7 @@ fn merged_mean(q: u32, sigma: i32, sum: i32, n1: u32, rn: u32, rn1: u32) -> (i32
 }
 }
 
-inline_with_fpu! {
+per_dim_step! {
 /// One dimension's codes: μ = m/σ by the reciprocal `r_sigma` (2³²/σ) to 1/256 of a step, plus a dither
 /// below one step, floored (stochastic rounding); Ψ the minifloat key of `bits` less the voxel's `base`.
 /// Bytes 0 and 1 of `dither` serve μ and Ψ, as in [`QuantVoxel::reencode`].
@@ -120,7 +134,7 @@ struct ScatterUnits {
     r1: u32,
 }
 
-inline_with_fpu! {
+per_dim_step! {
 /// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `k` the
 /// old minifloat code (with its base), `d` the distance of the means (MEAN_FRAC fraction bits), `numer`
 /// the sums' n₁Σc² − (Σc)². Not inlined: one copy of the body keeps the loop small.
@@ -131,17 +145,15 @@ fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
         0
     } else {
         // (4 + f) · 1/s² mantissa < 7 · 2²⁴.
-        u64::from(shift(
-            (4 + (k & 3)) * u.inv_s2,
-            (k >> 2) as i32 + u.old_shift,
-        ))
+        shift((4 + (k & 3)) * u.inv_s2, (k >> 2) as i32 + u.old_shift)
     };
-    let within = mul32(numer, u.r1) >> (32 + g);
+    // g ∈ [−15, 15]: both shifts are by 17 to 51 bits, each result saturated to 32 bits (so is the sum).
+    let within = shr_sat32(mul32(numer, u.r1), (32 + g) as u32);
     let d2 = mul32(d.unsigned_abs(), d.unsigned_abs());
     // d2 · w with w < 2¹⁷ and d2 < 2⁴⁵: its high word times w fits 32 bits.
     let d2w = mul32(d2 as u32, u.w) + (u64::from(((d2 >> 32) as u32).wrapping_mul(u.w)) << 32);
-    let between = d2w >> (36 + g); // d: 14 fraction bits, squared 28, w 8
-    let total = (old + within + between).min(u64::from(u32::MAX)) as u32;
+    let between = shr_sat32(d2w, (36 + g) as u32); // d: 14 fraction bits, squared 28, w 8
+    let total = old.saturating_add(within).saturating_add(between);
     if total == 0 {
         return 0;
     }
@@ -167,9 +179,9 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// [`Self::reencode`] of the decoded codes merged with [`CodeSums::to_obs`] gives, to the rounding of the
     /// last code step. Keeps the mean's scale when it still fits, as [`Self::reencode`] does.
     ///
-    /// Three passes over the dimensions: the merged means (and the distance between the two means), the
-    /// merged scatters (as the f32 bit patterns of their values), then the codes with the dither stream
-    /// `reencode` uses. Every product fits its width by the bounds of int8 codes (|Σc| ≤ 255·127).
+    /// Two passes over the dimensions: the merged means and scatters (the latter as the f32 bit patterns of
+    /// their values), then — once the mean's scale and the scatter's base are known — the codes with the
+    /// dither stream `reencode` uses. Every product fits its width by the bounds of int8 codes (|Σc| ≤ 255·127).
     #[inline(never)]
     pub fn merge_codes_fixed(
         &self,
@@ -192,22 +204,50 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             0
         };
 
-        // ---- pass 1, means in code steps (MEAN_FRAC fraction bits): with x = Σc − n₁m₀, the merged mean
-        // is m₀ + x/n and the new points' mean is m₀ + x/n₁ (d = x/n₁). Divisions by reciprocals (2³²/n).
-        // (2³² − 1)/k: a 32-bit division (a 64-bit one links ≈ 1 KB of library code on a 32-bit MCU).
+        // ---- pass 1, per dimension: the merged mean in code steps (MEAN_FRAC fraction bits) and the merged
+        // scatter. With x = Σc − n₁m₀ the merged mean is m₀ + x/n and the new points' mean is m₀ + x/n₁
+        // (d = x/n₁). Divisions by reciprocals (2³²/n): (2³² − 1)/k, a 32-bit division (a 64-bit one links
+        // ≈ 1 KB of library code on a 32-bit MCU). Scatters in units of c²·2^g, g chosen so that
+        // n·127²·1.25 < 2³¹; each ends as the f32 bit pattern of its value (what the minifloat codes are cut
+        // from). One pass: the scatter needs only its own dimension's d (no array of them).
         let recip = |k: u32| -> u32 { u32::MAX / k.max(1) };
         let (rn, rn1) = (recip(n), recip(n1));
+        let g = (32 - lz(n) as i32) - 16;
+        // n₀n₁/n = n₁ − n₁²/n, with 8 fraction bits (n₁²·2⁸ < 2²⁴), and 2³²/n₁: 32-bit divisions.
+        let w = (n1 << 8) - ((n1 * n1) << 8).wrapping_add(n / 2) / n;
+        let ctx = ScatterUnits {
+            old: n0 > 0,
+            old_shift: fix.inv_s2.e - 129 - g, // minifloat 2^(E−129)·(4+f) → units, with 1/s²
+            inv_s2: fix.inv_s2.m,
+            s2: fix.s2,
+            g,
+            w,
+            r1: rn1,
+        };
+        let base_old = u32::from(self.psi_base);
         let mut mean = [0i32; D];
-        let mut diff = [0i32; D];
+        let mut scatter = [0u32; D];
         let mut max_abs = 0u32;
+        let mut psi_max_bits = 0u32;
         for i in 0..dims {
-            let (Some(m), Some(dd), Some(&sum)) =
-                (mean.get_mut(i), diff.get_mut(i), sums.sum.get(i))
-            else {
+            let (Some(m), Some(b), Some(&sum), Some(&sq)) = (
+                mean.get_mut(i),
+                scatter.get_mut(i),
+                sums.sum.get(i),
+                sums.squares.get(i),
+            ) else {
                 break;
             };
-            (*m, *dd) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn, rn1);
+            let d;
+            (*m, d) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn, rn1);
             max_abs = max_abs.max(m.unsigned_abs());
+            *b = merged_scatter_bits(
+                &ctx,
+                code_at(psi_part, super::PSI_BITS, i) + base_old,
+                d,
+                scatter_numerator(n1, sum, sq),
+            );
+            psi_max_bits = psi_max_bits.max(*b);
         }
 
         // ---- the mean's scale: kept while it fits (as `reencode`), else max|m|·1.25/q_max rounded up in f16.
@@ -234,45 +274,10 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             (s, sig)
         };
 
-        // ---- pass 2, scatters in units of c²·2^g, g chosen so that n·127²·1.25 < 2³¹; each ends as the
-        // f32 bit pattern of its value (what the minifloat codes are cut from).
-        let g = (32 - lz(n) as i32) - 16;
-        // n₀n₁/n = n₁ − n₁²/n, with 8 fraction bits (n₁²·2⁸ < 2²⁴), and 2³²/n₁: 32-bit divisions.
-        let w = (n1 << 8) - ((n1 * n1) << 8).wrapping_add(n / 2) / n;
-        let r1 = u32::MAX / n1;
-        let ctx = ScatterUnits {
-            old: n0 > 0,
-            old_shift: fix.inv_s2.e - 129 - g, // minifloat 2^(E−129)·(4+f) → units, with 1/s²
-            inv_s2: fix.inv_s2.m,
-            s2: fix.s2,
-            g,
-            w,
-            r1,
-        };
-        let base_old = u32::from(self.psi_base);
-        let mut scatter = [0u32; D];
-        let mut psi_max_bits = 0u32;
-        for i in 0..dims {
-            let (Some(b), Some(&d), Some(&sum), Some(&sq)) = (
-                scatter.get_mut(i),
-                diff.get(i),
-                sums.sum.get(i),
-                sums.squares.get(i),
-            ) else {
-                break;
-            };
-            *b = merged_scatter_bits(
-                &ctx,
-                code_at(psi_part, super::PSI_BITS, i) + base_old,
-                d,
-                scatter_numerator(n1, sum, sq),
-            );
-            psi_max_bits = psi_max_bits.max(*b);
-        }
         let top = (psi_max_bits.min(f32::MAX.to_bits()) >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
-        // ---- pass 3, codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3:
+        // ---- pass 2, codes, with the dither stream `reencode` uses (bytes 0, 1: μ, Ψ of a dimension; 2, 3:
         // the next). μ: m/σ by a reciprocal (2³²/σ) to 1/256 of a step, plus a dither below one step, floored.
         let r_sigma = if sigma > 0 {
             u32::MAX / sigma.unsigned_abs()

@@ -276,6 +276,13 @@ pub fn wire_count(count: f32) -> Option<u32> {
     ((1..=MAX_COUNT).contains(&n) && n as f32 == count).then_some(n)
 }
 
+/// The size class of a stamped summary's codes ([`super::summary`]: forgetting): its weight n rounded
+/// up, at least 2 (a faded voxel's scatter is sent even below two points' weight), at most
+/// [`MAX_COUNT`]. `None` unless n is finite and in (0, [`MAX_COUNT`]].
+pub fn stamped_class(n: f32) -> Option<u32> {
+    (n > 0.0 && n <= MAX_COUNT as f32).then(|| (libm::ceilf(n) as u32).clamp(2, MAX_COUNT))
+}
+
 /// Write the quantized part (mean scale, mean codes, scatter) of observation statistics into
 /// `out[..codec.code_len(D)]`.
 pub fn encode_codes<const D: usize>(
@@ -283,9 +290,19 @@ pub fn encode_codes<const D: usize>(
     stats: &ObsStats<D>,
     out: &mut [u8],
 ) -> Result<usize, WireError> {
+    encode_codes_as(codec, stats, wire_count(stats.count).unwrap_or(1), out)
+}
+
+/// [`encode_codes`] with the codes sized for a summary of `count` points (a stamped summary's
+/// [`stamped_class`]).
+pub fn encode_codes_as<const D: usize>(
+    codec: SummaryCodec,
+    stats: &ObsStats<D>,
+    count: u32,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
     codec.validate(D)?;
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
-    let count = wire_count(stats.count).unwrap_or(1);
     let len = codec.code_len_for(D, count);
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
@@ -352,8 +369,19 @@ pub fn decode_codes<const D: usize>(
     count: f32,
     bytes: &[u8],
 ) -> Result<ObsStats<D>, WireError> {
-    codec.validate(D)?;
     let n = wire_count(count).ok_or(WireError::BadCount)?;
+    decode_codes_as(codec, n, count, bytes)
+}
+
+/// Decode codes sized for a summary of `n` points ([`encode_codes_as`]) into statistics of weight
+/// `count`.
+pub fn decode_codes_as<const D: usize>(
+    codec: SummaryCodec,
+    n: u32,
+    count: f32,
+    bytes: &[u8],
+) -> Result<ObsStats<D>, WireError> {
+    codec.validate(D)?;
     let bytes = bytes
         .get(..codec.code_len_for(D, n))
         .ok_or(WireError::Truncated)?;

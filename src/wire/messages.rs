@@ -38,6 +38,13 @@ pub struct SessionConfig {
     /// Scale of the robot's int8 features (a code c is the feature value `int8_scale` · c), so a receiver
     /// knows the grid the statistics were computed on; 0 = f32 features. Finite and ≥ 0.
     pub int8_scale: f32,
+    /// Half-life of the robot's map in mission-clock ticks when it forgets ([`crate::forget`]), 0 when it
+    /// does not. Not a postcard field: it travels as the session message's 4-byte extension, present only
+    /// when > 0 ([`encode_body`]), so a session that does not forget sends the same bytes as before. (Only
+    /// with the `forgetting` feature: a firmware built without it carries none of this.)
+    #[cfg(feature = "forgetting")]
+    #[serde(skip)]
+    pub half_life: f32,
 }
 
 impl SessionConfig {
@@ -59,7 +66,26 @@ impl SessionConfig {
             codec,
             feature_space,
             int8_scale: 0.0,
+            #[cfg(feature = "forgetting")]
+            half_life: 0.0,
         }
+    }
+
+    /// The same configuration for a map that forgets with `forgetting` (`None`: does not).
+    #[cfg(feature = "forgetting")]
+    pub fn with_forgetting(self, forgetting: Option<crate::forget::Forgetting>) -> Self {
+        Self {
+            half_life: forgetting.map_or(0.0, |f| f.half_life()),
+            ..self
+        }
+    }
+
+    /// How the session's maps forget (`None`: they do not; their summaries are unstamped).
+    pub fn forgetting(&self) -> Option<crate::forget::Forgetting> {
+        #[cfg(feature = "forgetting")]
+        return crate::forget::Forgetting::new(self.half_life);
+        #[cfg(not(feature = "forgetting"))]
+        return None;
     }
 
     /// The same configuration for a robot whose features are int8 codes of `scale`
@@ -98,13 +124,25 @@ impl SessionConfig {
         if !(self.int8_scale >= 0.0 && self.int8_scale.is_finite()) {
             return Err(WireError::BadConfig);
         }
+        #[cfg(feature = "forgetting")]
+        if !(self.half_life >= 0.0 && self.half_life.is_finite()) {
+            return Err(WireError::BadConfig);
+        }
         Ok(())
     }
 
-    /// The configuration id: CRC-32 of its postcard encoding.
+    /// The configuration id: CRC-32 of its postcard encoding, followed by the half-life extension when the
+    /// session forgets.
     pub fn id(&self) -> u32 {
         let mut buf = [0u8; 64];
         match postcard::to_slice(self, &mut buf) {
+            #[cfg(feature = "forgetting")]
+            Ok(bytes) if self.half_life > 0.0 => {
+                let mut digest = CRC32.digest();
+                digest.update(bytes);
+                digest.update(&self.half_life.to_le_bytes());
+                digest.finalize()
+            }
             Ok(bytes) => CRC32.checksum(bytes),
             Err(_) => 0, // cannot happen: the encoding is at most 44 bytes
         }
@@ -203,7 +241,8 @@ pub enum Message<'a> {
     Stats(LinkStats),
 }
 
-/// Serialize header + message into `out`; returns the body length.
+/// Serialize header + message into `out`; returns the body length. A session message of a session that
+/// forgets ends with its half-life (f32 little-endian: the extension [`SessionConfig::half_life`]).
 pub fn encode_body(
     header: &FrameHeader,
     message: &Message<'_>,
@@ -216,6 +255,15 @@ pub fn encode_body(
     let m = postcard::to_slice(message, rest)
         .map_err(|_| WireError::BufferFull)?
         .len();
+    #[cfg(feature = "forgetting")]
+    if let Message::Session(c) = message {
+        if c.half_life > 0.0 {
+            out.get_mut(h + m..h + m + 4)
+                .ok_or(WireError::BufferFull)?
+                .copy_from_slice(&c.half_life.to_le_bytes());
+            return Ok(h + m + 4);
+        }
+    }
     Ok(h + m)
 }
 
@@ -231,9 +279,19 @@ pub fn parse_body(body: &[u8]) -> Result<(FrameHeader, Message<'_>), WireError> 
         _ => WireError::Malformed,
     };
     let (header, rest) = postcard::take_from_bytes::<FrameHeader>(body).map_err(map)?;
-    let (message, rest) = postcard::take_from_bytes::<Message<'_>>(rest).map_err(map)?;
-    if !rest.is_empty() {
-        return Err(WireError::Malformed);
+    #[allow(unused_mut)] // the half-life extension is read only with forgetting
+    let (mut message, rest) = postcard::take_from_bytes::<Message<'_>>(rest).map_err(map)?;
+    match (&mut message, rest) {
+        (_, []) => {}
+        // The half-life extension: only after a session message, and only > 0 (0 is sent as no bytes).
+        #[cfg(feature = "forgetting")]
+        (Message::Session(c), &[a, b, c2, d]) => {
+            c.half_life = f32::from_le_bytes([a, b, c2, d]);
+            if !(c.half_life > 0.0) {
+                return Err(WireError::Malformed);
+            }
+        }
+        _ => return Err(WireError::Malformed),
     }
     Ok((header, message))
 }

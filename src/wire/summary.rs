@@ -1,7 +1,9 @@
 //! A voxel summary on the wire: key and residency deltas within a frame, the final flag, the exact point
-//! count, then the quantized codes of [`super::codec`].
+//! count, then the quantized codes of [`super::codec`]. A session that forgets sends *stamped* summaries
+//! instead: a count of 0, then the tick of the voxel's last change and its weight n (f32, exact), the
+//! statistics being as of that tick (`wire_spec.md`, the clock rule).
 
-use super::codec::{decode_codes, SummaryCodec, MAX_COUNT};
+use super::codec::{decode_codes, decode_codes_as, stamped_class, SummaryCodec, MAX_COUNT};
 use super::{VoxelBatch, WireError};
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
@@ -22,6 +24,9 @@ pub struct Summary<const D: usize> {
     /// lies within 1/8 octave below it.
     /// Receivers count it.
     pub at_ceiling: Ceiling,
+    /// A stamped summary's tick (forgetting: `obs` are as of it, and n is a weight, not a count); `None`
+    /// for a summary of a session that does not forget.
+    pub time: Option<u32>,
 }
 
 /// Which of a summary's log-coded values were sent with the top code (see [`Summary::at_ceiling`]).
@@ -115,13 +120,41 @@ pub fn encode_summary_head(
     count: u32,
     out: &mut [u8],
 ) -> Result<usize, WireError> {
+    let mut at = put_key_residency(base, key, residency, is_final, out)?;
+    put_varint(out, &mut at, u64::from(count))?;
+    Ok(at)
+}
+
+/// Write a stamped summary's head (forgetting): key and residency deltas with the final flag, a count of
+/// 0, the tick `time` of the voxel's last change (varint), its weight `n` (f32 little-endian); the caller
+/// appends codes sized for [`stamped_class`]`(n)`. Returns the bytes written and advances `base`.
+pub fn encode_stamped_head(
+    base: &mut DeltaBase,
+    (key, residency, is_final): (VoxelKey, u32, bool),
+    time: u32,
+    n: f32,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
+    let mut at = put_key_residency(base, key, residency, is_final, out)?;
+    put_varint(out, &mut at, 0)?;
+    put_varint(out, &mut at, u64::from(time))?;
+    put(out, &mut at, &n.to_le_bytes())?;
+    Ok(at)
+}
+
+fn put_key_residency(
+    base: &mut DeltaBase,
+    key: VoxelKey,
+    residency: u32,
+    is_final: bool,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
     let mut at = 0;
     for (k, b) in key.as_array().iter().zip(base.key.as_array()) {
         put_varint(out, &mut at, u64::from(zigzag(k.wrapping_sub(b))))?;
     }
     let dres = u64::from(zigzag(residency.wrapping_sub(base.residency) as i32));
     put_varint(out, &mut at, dres << 1 | u64::from(is_final))?;
-    put_varint(out, &mut at, u64::from(count))?;
     *base = DeltaBase { key, residency };
     Ok(at)
 }
@@ -147,12 +180,23 @@ pub fn decode_summary<const D: usize>(
     let residency = base.residency.wrapping_add(unzigzag(z) as u32);
     let is_final = rf & 1 == 1;
     let count = take_varint(bytes, at, 4)?;
-    if !(1..=u64::from(MAX_COUNT)).contains(&count) {
-        return Err(WireError::BadCount);
-    }
-    let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
-    let obs = decode_codes::<D>(codec, count as f32, codes)?;
-    let count = count as u32;
+    let (count, obs, codes, time) = if count == 0 {
+        // Stamped (forgetting): the tick, the weight n, codes sized for its class.
+        let time = u32::try_from(take_varint(bytes, at, 5)?).map_err(|_| WireError::Malformed)?;
+        let n = take(bytes, at, 4)?;
+        let n = f32::from_le_bytes([n[0], n[1], n[2], n[3]]);
+        let class = stamped_class(n).ok_or(WireError::BadCount)?;
+        let codes = take(bytes, at, codec.code_len_for(D, class))?;
+        let obs = decode_codes_as::<D>(codec, class, n, codes)?;
+        (class, obs, codes, Some(time))
+    } else {
+        if count > u64::from(MAX_COUNT) {
+            return Err(WireError::BadCount);
+        }
+        let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
+        let obs = decode_codes::<D>(codec, count as f32, codes)?;
+        (count as u32, obs, codes, None)
+    };
     let psi_at = codec.mean_len_for(D, count);
     let rest_at = codec.lead_len_for(count);
     let at_ceiling = Ceiling {
@@ -166,6 +210,7 @@ pub fn decode_summary<const D: usize>(
         is_final,
         obs,
         at_ceiling,
+        time,
     })
 }
 

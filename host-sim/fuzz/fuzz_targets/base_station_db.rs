@@ -62,6 +62,7 @@ fuzz_target!(|data: &[u8]| {
                 key,
                 obs: &stats,
                 residency,
+                time: 0,
             })
             .is_err()
             || i % 3 == 2

@@ -40,11 +40,12 @@ fuzz_target!(|data: &[u8]| {
                         ] {
                             for s in batch.iter::<64>(codec) {
                                 if let Ok(s) = s {
-                                    assert!(
-                                        s.key.in_range()
-                                            && s.obs.count >= 1.0
-                                            && s.obs.is_valid()
-                                    );
+                                    // A stamped summary (forgetting) carries a weight in (0, 2^24].
+                                    let weight_ok = match s.time {
+                                        Some(_) => s.obs.count > 0.0,
+                                        None => s.obs.count >= 1.0,
+                                    };
+                                    assert!(s.key.in_range() && weight_ok && s.obs.is_valid());
                                 }
                             }
                         }

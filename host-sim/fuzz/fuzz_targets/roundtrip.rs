@@ -1,5 +1,6 @@
 //! Voxels built from fuzz bytes → FrameEncoder (as an eviction sink, with a byte budget) → bytes →
-//! FrameDecoder: every voxel the encoder took arrives with its key, residency and λ exact.
+//! FrameDecoder: every voxel the encoder took arrives with its key, residency and λ exact; in a session
+//! that forgets (bit 7 of the second byte), with its stamp exact too and any weight in (0, 2^24].
 #![no_main]
 
 use latentbki::frame::{EncoderSettings, Feed, FrameDecoder};
@@ -35,7 +36,10 @@ fuzz_target!(|data: &[u8]| {
         lead: data[1] / 16 % D as u8,
         lead_bits: data[0] / 28 % 7,
     };
-    let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
+    let forgetting = (data[1] & 0x80 != 0)
+        .then(|| latentbki::forget::Forgetting::new(1.0 + f32::from(data[0])))
+        .flatten();
+    let config = SessionConfig::new(&MapConfig::default(), D, codec, 0).with_forgetting(forgetting);
     let mut enc = FrameEncoder::<D, 2048, 256>::new(config, EncoderSettings::new(1, 1)).unwrap();
     let mut out = Buf(Vec::new());
     let mut sent = Vec::new();
@@ -54,12 +58,19 @@ fuzz_target!(|data: &[u8]| {
             mean: core::array::from_fn(|d| f(&v[4 + 4 * d..])),
             scatter: core::array::from_fn(|d| f(&v[4 + 4 * D + 4 * d..]).abs()),
         };
-        let ok = stats.is_valid() && latentbki::wire::wire_count(stats.count).is_some();
+        let ok = stats.is_valid()
+            && match forgetting {
+                Some(_) => latentbki::wire::stamped_class(stats.count).is_some(),
+                None => latentbki::wire::wire_count(stats.count).is_some(),
+            };
+        // Any tick (the key's first word).
+        let time = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
         if enc
             .evict(Evicted {
                 key,
                 obs: &stats,
                 residency: i as u32,
+                time,
             })
             .is_err()
         {
@@ -67,7 +78,7 @@ fuzz_target!(|data: &[u8]| {
             continue;
         }
         if ok {
-            sent.push((key, i as u32, stats.count));
+            sent.push((key, i as u32, stats.count, forgetting.map(|_| time)));
         }
     }
     while enc.queued() > 0 {
@@ -81,11 +92,15 @@ fuzz_target!(|data: &[u8]| {
             Feed::NeedMore => break,
             Feed::Error { error, .. } => panic!("clean stream refused: {error:?}"),
             Feed::Frame { body, rest } => {
-                if let (_, Message::Voxels(b)) = parse_body(body).unwrap() {
-                    for s in b.iter::<D>(codec) {
-                        let s = s.unwrap();
-                        got.push((s.key, s.residency, s.obs.count));
+                match parse_body(body).unwrap() {
+                    (_, Message::Voxels(b)) => {
+                        for s in b.iter::<D>(codec) {
+                            let s = s.unwrap();
+                            got.push((s.key, s.residency, s.obs.count, s.time));
+                        }
                     }
+                    (_, Message::Session(c)) => assert_eq!(c, config, "the half-life arrives"),
+                    _ => {}
                 }
                 input = rest;
             }
@@ -93,6 +108,6 @@ fuzz_target!(|data: &[u8]| {
     }
     assert_eq!(got.len(), sent.len());
     for (a, b) in got.iter().zip(&sent) {
-        assert_eq!((a.0, a.1, a.2.to_bits()), (b.0, b.1, b.2.to_bits()));
+        assert_eq!((a.0, a.1, a.2.to_bits(), a.3), (b.0, b.1, b.2.to_bits(), b.3));
     }
 });

@@ -214,7 +214,7 @@ impl<const D: usize> BaseStation<D> {
                 expected: D,
             });
         }
-        let config: SessionConfig = postcard::from_bytes(bytes)
+        let config = config_from_bytes(bytes)
             .map_err(|e| RestoreError::Invalid(format!("session configuration: {e}")))?;
         let mut map = GlobalMap::new(config)
             .map_err(|e| RestoreError::Invalid(format!("session configuration: {e:?}")))?;
@@ -244,10 +244,7 @@ impl<const D: usize> BaseStation<D> {
     /// Everything changed since the last [`BaseStation::committed`], at a frame boundary.
     pub fn changes(&self) -> Changes {
         let config = match (&self.map, self.config_dirty) {
-            (Some(m), true) => Some((
-                D as u32,
-                postcard::to_stdvec(m.config()).expect("a session config serializes"),
-            )),
+            (Some(m), true) => Some((D as u32, config_to_bytes(m.config()))),
             _ => None,
         };
         let voxels = match &self.map {
@@ -441,4 +438,26 @@ impl SessionTable for Table<'_> {
         self.dirty.insert((robot, session));
         Some(&mut self.sessions.entry((robot, session)).or_default().seq)
     }
+}
+
+/// A session configuration as the store keeps it: its postcard encoding, then the half-life (f32
+/// little-endian) when the session forgets — the same bytes as the session message on the wire.
+fn config_to_bytes(c: &SessionConfig) -> Vec<u8> {
+    let mut out = postcard::to_stdvec(c).expect("a session config serializes");
+    if c.half_life > 0.0 {
+        out.extend_from_slice(&c.half_life.to_le_bytes());
+    }
+    out
+}
+
+/// [`config_to_bytes`] read back.
+fn config_from_bytes(bytes: &[u8]) -> Result<SessionConfig, String> {
+    let (mut c, rest): (SessionConfig, _) =
+        postcard::take_from_bytes(bytes).map_err(|e| e.to_string())?;
+    match rest {
+        [] => {}
+        &[a, b, c2, d] => c.half_life = f32::from_le_bytes([a, b, c2, d]),
+        _ => return Err(format!("{} trailing bytes", rest.len())),
+    }
+    Ok(c)
 }

@@ -257,6 +257,12 @@ impl<const D: usize> ObsMap<D> {
 
     /// Replace a voxel's observations (e.g. the base station's merged statistics after a live update).
     pub fn set_observations(&mut self, key: VoxelKey, obs: &ObsStats<D>) {
+        self.set_stamped(key, obs, self.now); // held as of now
+    }
+
+    /// Replace a voxel's observations by statistics as of tick `time` (a base station's merged stamped
+    /// contributions): reads decay them from that tick by the clock rule.
+    pub fn set_stamped(&mut self, key: VoxelKey, obs: &ObsStats<D>, time: u32) {
         let (bk, local) = block_of(key);
         if obs.is_empty() && self.observed(key).is_none() {
             return; // nothing to hold, nothing held
@@ -264,7 +270,12 @@ impl<const D: usize> ObsMap<D> {
         let b = self.block_index_or_insert(bk);
         let slot = self.slot_or_insert(b, local, key);
         self.stats[slot as usize] = *obs;
-        self.times[slot as usize] = self.now; // held as of now
+        self.times[slot as usize] = time;
+    }
+
+    /// The mission tick reads decay to.
+    pub fn time(&self) -> u32 {
+        self.now
     }
 
     /// The posterior of one voxel (the prior if nothing is in reach).

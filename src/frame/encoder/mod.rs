@@ -166,6 +166,16 @@ mod scheduler;
 
 pub use queue::{live, LiveItem};
 
+/// Largest wire size of one summary of a session (a stamped one is [`queue::STAMP_EXTRA`] longer).
+fn max_summary_len<const D: usize>(config: &SessionConfig) -> usize {
+    let len = config.codec.max_summary_len(D);
+    #[cfg(feature = "forgetting")]
+    if queue::stamped(config) {
+        return len + queue::STAMP_EXTRA;
+    }
+    len
+}
+
 /// A session configuration that validates for no dimension: the unconfigured encoder's.
 const NO_SESSION: SessionConfig = SessionConfig {
     dim: 0,
@@ -185,6 +195,8 @@ const NO_SESSION: SessionConfig = SessionConfig {
     },
     feature_space: 0,
     int8_scale: 0.0,
+    #[cfg(feature = "forgetting")]
+    half_life: 0.0,
 };
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
@@ -254,9 +266,9 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         if settings.resend.is_on() && (resend > QB || resend < N + 11) {
             return Err(WireError::BufferFull);
         }
-        let entry_len = ENTRY_HEAD + config.codec.code_len(D);
+        let entry_len = ENTRY_HEAD + queue::stamp_len(&config) + config.codec.code_len(D);
         let capacity = (QB - resend).checked_div(entry_len).unwrap_or(0);
-        let one = wire_len(VOXEL_FRAME_OVERHEAD + config.codec.max_summary_len(D));
+        let one = wire_len(VOXEL_FRAME_OVERHEAD + max_summary_len::<D>(&config));
         if capacity == 0 || one > N || wire_len(64) > N {
             return Err(WireError::BufferFull);
         }
@@ -266,6 +278,11 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.entry_len = entry_len;
         self.capacity = capacity;
         Ok(())
+    }
+
+    /// Largest wire size of one summary of the session.
+    pub(super) fn max_summary_len(&self) -> usize {
+        max_summary_len::<D>(&self.config)
     }
 
     /// End the session: queued voxels are dropped, nothing is sent and every voxel is refused until the

@@ -1,13 +1,14 @@
 //! Packing frames: summaries are appended to the frame being filled while it fits, then the frame's
 //! body (header + message) gets its CRC-32 and is COBS-encoded between two delimiters.
 
+use super::queue::Weight;
 use super::{FrameEncoder, VOXEL_FRAME_OVERHEAD};
 use crate::frame::wire_len;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use crate::wire::{
-    encode_body, encode_codes, encode_summary_head, DeltaBase, FrameHeader, Message, SummaryCodec,
-    VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
+    encode_body, encode_codes_as, encode_summary_head, DeltaBase, FrameHeader, Message,
+    SummaryCodec, VoxelBatch, WireError, CRC32, PROTOCOL_VERSION,
 };
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
@@ -74,14 +75,18 @@ pub(super) fn append<const D: usize>(
     base: &mut DeltaBase,
     limit: usize,
     codec: SummaryCodec,
-    (key, residency, count, codes): (VoxelKey, u32, u32, Codes<'_, D>),
+    (key, residency, weight, codes): (VoxelKey, u32, Weight, Codes<'_, D>),
 ) -> bool {
     let mut trial = *base;
     let evicted = matches!(codes, Codes::Queued(_));
-    let Some(Ok(h)) = out
-        .get_mut(*used..)
-        .map(|o| encode_summary_head(&mut trial, key, residency, evicted, count, o))
-    else {
+    let count = weight.class();
+    let Some(Ok(h)) = out.get_mut(*used..).map(|o| match weight {
+        Weight::Count(c) => encode_summary_head(&mut trial, key, residency, evicted, c, o),
+        #[cfg(feature = "forgetting")]
+        Weight::Stamped { n, time } => {
+            crate::wire::encode_stamped_head(&mut trial, (key, residency, evicted), time, n, o)
+        }
+    }) else {
         return false;
     };
     let at = *used + h;
@@ -97,7 +102,10 @@ pub(super) fn append<const D: usize>(
                 None => return false,
             }
         }
-        Codes::Live(obs) => match out.get_mut(at..).map(|o| encode_codes(codec, obs, o)) {
+        Codes::Live(obs) => match out
+            .get_mut(at..)
+            .map(|o| encode_codes_as(codec, obs, count, o))
+        {
             Some(Ok(c)) => c,
             _ => return false,
         },

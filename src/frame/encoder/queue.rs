@@ -7,10 +7,61 @@ use crate::key::VoxelKey;
 use crate::local_map::LiveVoxel;
 use crate::obs::ObsStats;
 use crate::sink::{Evicted, EvictionSink, SinkFull};
-use crate::wire::{encode_codes, wire_count};
+use crate::wire::{encode_codes_as, wire_count, SessionConfig};
 
-/// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32), all little-endian.
+/// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32; a stamped entry's
+/// weight n as f32 bits, its tick in the 4 bytes after), all little-endian.
 pub(super) const ENTRY_HEAD: usize = 20;
+
+/// Bytes a stamped summary adds to the largest unstamped one: the count 0 and the tick's varint (up to 5)
+/// in place of the count's (at least 1), and the 4-byte weight.
+#[cfg(feature = "forgetting")]
+pub(super) const STAMP_EXTRA: usize = 9;
+
+/// Whether a session forgets: its summaries are stamped (never without the `forgetting` feature).
+#[inline]
+pub(super) fn stamped(config: &SessionConfig) -> bool {
+    #[cfg(feature = "forgetting")]
+    return config.half_life > 0.0;
+    #[cfg(not(feature = "forgetting"))]
+    return {
+        let _ = config;
+        false
+    };
+}
+
+/// Bytes of a queue entry between its head and its codes: a stamped entry's tick.
+#[inline]
+pub(super) fn stamp_len(config: &SessionConfig) -> usize {
+    if stamped(config) {
+        4
+    } else {
+        0
+    }
+}
+
+/// A summary's weight as the encoder sends it: a whole point count, or (a session that forgets) the
+/// weight n with the tick of the voxel's last change.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Weight {
+    Count(u32),
+    #[cfg(feature = "forgetting")]
+    Stamped {
+        n: f32,
+        time: u32,
+    },
+}
+
+impl Weight {
+    /// The point count the codes are sized for.
+    pub(super) fn class(self) -> u32 {
+        match self {
+            Self::Count(c) => c,
+            #[cfg(feature = "forgetting")]
+            Self::Stamped { n, .. } => crate::wire::stamped_class(n).unwrap_or(2),
+        }
+    }
+}
 
 /// The fixed part of a queue entry.
 pub(super) fn entry_head(key: VoxelKey, residency: u32, count: u32) -> [u8; ENTRY_HEAD] {
@@ -34,6 +85,35 @@ pub(super) fn parse_entry_head(head: &[u8; ENTRY_HEAD]) -> (VoxelKey, u32, u32) 
 }
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    /// Whether the session forgets: its summaries are stamped.
+    #[inline]
+    #[cfg_attr(not(feature = "forgetting"), allow(dead_code))]
+    pub(super) fn stamped(&self) -> bool {
+        stamped(&self.config)
+    }
+
+    /// Bytes of a queue entry between its head and its codes (the tick of a stamped one).
+    #[inline]
+    pub(super) fn stamp_len(&self) -> usize {
+        stamp_len(&self.config)
+    }
+
+    /// The weight a voxel is sent with, or `None` if the decoder would refuse it (not valid; a count not
+    /// whole or out of range, or a stamped weight not in (0, 2²⁴]).
+    pub(super) fn weight(&self, voxel: &Evicted<'_, D>) -> Option<Weight> {
+        #[cfg(feature = "forgetting")]
+        if self.stamped() {
+            let n = voxel.obs.count;
+            return (voxel.obs.is_valid() && crate::wire::stamped_class(n).is_some()).then_some(
+                Weight::Stamped {
+                    n,
+                    time: voxel.time,
+                },
+            );
+        }
+        sendable(voxel.obs).map(Weight::Count)
+    }
+
     /// Queue slot `i` places after the oldest entry (`i ≤ capacity`), wrapped around the ring.
     pub(super) fn slot(&self, i: usize) -> usize {
         let s = self.head + i;
@@ -65,7 +145,7 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
     /// Quantize the voxel into the queue now; refuse when the queue is full (or there is no session). A
     /// non-finite voxel is counted as invalid and dropped (the map must not keep retrying it).
     fn evict(&mut self, voxel: Evicted<'_, D>) -> Result<(), SinkFull> {
-        let Some(count) = sendable(voxel.obs) else {
+        let Some(weight) = self.weight(&voxel) else {
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
         };
@@ -75,13 +155,26 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
         }
         let bytes = self.slot_bytes(self.slot(self.len));
         let codec = self.config.codec;
+        let stamp_len = self.stamp_len();
         let written = self
             .queue
             .get_mut(bytes)
             .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
-            .map(|(head, codes)| {
-                *head = entry_head(voxel.key, voxel.residency, count);
-                encode_codes(codec, voxel.obs, codes)
+            .map(|(head, rest)| {
+                #[allow(clippy::infallible_destructuring_match)] // one variant without forgetting
+                let word = match weight {
+                    Weight::Count(c) => c,
+                    #[cfg(feature = "forgetting")]
+                    Weight::Stamped { n, time } => {
+                        if let Some(t) = rest.get_mut(..4) {
+                            t.copy_from_slice(&time.to_le_bytes());
+                        }
+                        n.to_bits()
+                    }
+                };
+                *head = entry_head(voxel.key, voxel.residency, word);
+                let codes = rest.get_mut(stamp_len..).unwrap_or_default();
+                encode_codes_as(codec, voxel.obs, weight.class(), codes)
             });
         if !matches!(written, Some(Ok(_))) {
             // Cannot happen: the codec was validated for D and the queue sized for whole entries.
@@ -109,7 +202,10 @@ impl<const D: usize> LiveItem<D> for Evicted<'_, D> {
 
 impl<const D: usize> LiveItem<D> for LiveVoxel<D> {
     fn voxel(&self) -> Evicted<'_, D> {
-        live(self.key, &self.obs, self.residency)
+        Evicted {
+            time: self.time,
+            ..live(self.key, &self.obs, self.residency)
+        }
     }
 }
 
@@ -119,5 +215,6 @@ pub fn live<const D: usize>(key: VoxelKey, obs: &ObsStats<D>, residency: u32) ->
         key,
         obs,
         residency,
+        time: 0,
     }
 }

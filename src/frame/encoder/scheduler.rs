@@ -3,7 +3,7 @@
 //! numbered while frames wait for acknowledgement.
 
 use super::packer::{append, Codes};
-use super::queue::{parse_entry_head, sendable, LiveItem, ENTRY_HEAD};
+use super::queue::{parse_entry_head, LiveItem, Weight, ENTRY_HEAD};
 use super::{FrameEncoder, TickError, TickReport, VOXEL_FRAME_OVERHEAD};
 use crate::frame::resend::ACK_WINDOW;
 use crate::frame::wire_len;
@@ -202,7 +202,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             self.since_stats = 0;
         }
         let mut live = live.into_iter().peekable();
-        let smallest = wire_len(VOXEL_FRAME_OVERHEAD + self.config.codec.max_summary_len(D));
+        let smallest = wire_len(VOXEL_FRAME_OVERHEAD + self.max_summary_len());
         loop {
             let mut limit = N.min(budget.saturating_sub(report.bytes));
             if limit < smallest {
@@ -224,8 +224,17 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                 else {
                     break;
                 };
-                let (key, residency, points) = parse_entry_head(head);
-                let summary = (key, residency, points, Codes::<D>::Queued(codes));
+                let (key, residency, word) = parse_entry_head(head);
+                let weight = match codes.first_chunk::<4>() {
+                    #[cfg(feature = "forgetting")]
+                    Some(t) if self.stamped() => Weight::Stamped {
+                        n: f32::from_bits(word),
+                        time: u32::from_le_bytes(*t),
+                    },
+                    _ => Weight::Count(word),
+                };
+                let codes = codes.get(self.stamp_len()..).unwrap_or_default();
+                let summary = (key, residency, weight, Codes::<D>::Queued(codes));
                 if !append(
                     &mut self.scratch,
                     &mut used,
@@ -253,8 +262,8 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
                     }
                     let v = item.voxel();
                     // Consumed either way: sent, or skipped because the decoder would refuse it.
-                    if let Some(n) = sendable(v.obs) {
-                        let summary = (v.key, v.residency, n, Codes::Live(v.obs));
+                    if let Some(weight) = self.weight(&v) {
+                        let summary = (v.key, v.residency, weight, Codes::Live(v.obs));
                         if !append(
                             &mut self.scratch,
                             &mut used,

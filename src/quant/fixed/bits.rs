@@ -28,8 +28,49 @@ impl Parts {
 inline_with_fpu! {
 /// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
 pub(super) fn lz(v: u32) -> u32 {
-    v.leading_zeros()
+    #[cfg(target_abi = "eabi")]
+    return lz_halving(v);
+    #[cfg(not(target_abi = "eabi"))]
+    return v.leading_zeros();
 }
+}
+
+/// Leading zeros by halving the range (five steps): v6-M has no `clz`, and its library call
+/// (`__clzsi2`) runs ≈ 34 instructions against ≈ 18 here. Tested against `leading_zeros`.
+#[cfg(any(target_abi = "eabi", test))]
+#[inline(always)]
+pub(super) fn lz_halving(mut v: u32) -> u32 {
+    if v == 0 {
+        return 32;
+    }
+    let mut n = 0;
+    for step in [16, 8, 4, 2, 1] {
+        if v >> (32 - step) == 0 {
+            n += step;
+            v <<= step;
+        }
+    }
+    n
+}
+
+/// `p >> s`, saturated to `u32::MAX`, in 32-bit operations (a variable 64-bit shift is a library call on
+/// v6-M: `__aeabi_llsr`).
+#[inline(always)]
+pub(super) fn shr_sat32(p: u64, s: u32) -> u32 {
+    let (hi, lo) = ((p >> 32) as u32, p as u32);
+    if s >= 32 {
+        hi.checked_shr(s - 32).unwrap_or(0)
+    } else if s == 0 {
+        if hi != 0 {
+            u32::MAX
+        } else {
+            lo
+        }
+    } else if hi >> s != 0 {
+        u32::MAX
+    } else {
+        (hi << (32 - s)) | (lo >> s)
+    }
 }
 
 /// a · b, 32 × 32 → 64 bits. v6-M has no long multiply (`umull`): there a 64-bit product is a call to

@@ -47,6 +47,21 @@ fn the_halves_multiply_is_the_64_bit_product() {
 }
 
 #[test]
+fn the_32_bit_shift_and_leading_zeros_match_the_64_bit_ones() {
+    let mut rng = Rng(0x2468_ACE0);
+    for i in 0..100_000u32 {
+        let p = (u64::from(rng.next()) << 32 | u64::from(rng.next())) >> (i % 64);
+        for s in [0, 1, 17, 31, 32, 33, 47, 51, 63] {
+            let want = (p >> s).min(u64::from(u32::MAX)) as u32;
+            assert_eq!(shr_sat32(p, s), want, "{p} >> {s}");
+        }
+        let v = rng.next() >> (i % 33).min(31) >> u32::from(i % 33 == 32);
+        assert_eq!(lz_halving(v), v.leading_zeros(), "{v}");
+    }
+    assert_eq!(lz_halving(0), 32);
+}
+
+#[test]
 fn integer_helpers_match_f32() {
     for v in [1.0f32, 3.0, 255.0, 1000.0, 16_777_215.0] {
         assert_eq!(count_of(v.to_bits()), v as u32);

@@ -8,12 +8,18 @@
 //! repeated or late copy is ignored instead of merged again. Settled contributions are folded into one
 //! set of statistics per voxel; only live ones are kept apart until they close.
 //!
+//! **Forgetting** (a session with a half-life, `latentbki::forget`): every contribution carries the tick of
+//! its last change, and merges follow the clock rule (both sides faded to the later stamp, then merged:
+//! exact in any order). The map's clock is the latest tick any summary carried (or later,
+//! [`GlobalMap::set_time`]); reads fade every voxel to it.
+//!
 //! Posteriors are gathered through the kernel when asked ([`latentbki::obs`]). The map keeps each voxel's
 //! merged statistics in an [`ObsMap`] too, updated with every summary applied, so a lookup neither merges
 //! nor allocates: one voxel's posterior is the core's `gather` over the block map's array-indexed
 //! neighbours, and every posterior in reach is one pass over it.
 
 use crate::ObsMap;
+use latentbki::forget::{Forgetting, Stamped};
 use latentbki::wire::{SessionConfig, Summary};
 use latentbki::{
     decode::Codebook, key::VoxelKey, obs::ObsLookup, obs::ObsStats, stats::VoxelStats, MapConfig,
@@ -44,6 +50,8 @@ pub struct LiveContribution<const D: usize> {
     pub seq: u32,
     /// What the robot observed in the voxel during that residency so far.
     pub obs: ObsStats<D>,
+    /// Tick of its last change when the session forgets (`obs` are as of it), else 0.
+    pub time: u32,
 }
 
 /// One voxel of the global map.
@@ -51,6 +59,8 @@ pub struct LiveContribution<const D: usize> {
 pub struct GlobalVoxel<const D: usize> {
     /// Every closed contribution, merged.
     pub settled: ObsStats<D>,
+    /// Tick `settled` is as of when the session forgets (the latest stamp merged into it), else 0.
+    pub settled_time: u32,
     /// Ids of the closed contributions (their copies are ignored).
     pub closed: Vec<ContributionId>,
     /// Open contributions, newest copy of each, sorted by id (the order they are merged in, so the merged
@@ -60,7 +70,7 @@ pub struct GlobalVoxel<const D: usize> {
 
 /// Version of [`GlobalVoxel::to_record`]'s layout. Change it (and [`GlobalVoxel::from_record`]) whenever
 /// what a voxel stores changes: a database holding another version is refused with a clear error.
-pub const VOXEL_RECORD_VERSION: u8 = 2;
+pub const VOXEL_RECORD_VERSION: u8 = 3;
 
 /// Why a stored voxel record could not be read.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -93,17 +103,20 @@ impl<const D: usize> GlobalVoxel<D> {
     /// bit-exact and every list in memory order, so [`GlobalVoxel::from_record`] gives back an equal voxel
     /// (records whose live list is out of order, as older builds wrote them, are read back sorted by id).
     ///
-    /// Layout (little-endian): version u8; settled n, m (D), S (D) as f32; closed count u32, then
-    /// (robot u16, session u32, residency u32) each; live count u32, then (id, seq u32, n, m, S) each.
+    /// Layout (little-endian): version u8; settled n, m (D), S (D) as f32, settled tick u32; closed count
+    /// u32, then (robot u16, session u32, residency u32) each; live count u32, then (id, seq u32, n, m, S,
+    /// tick u32) each. Version 2 (no ticks) is still read, with ticks 0.
     pub fn to_record(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(
             1 + stats_len(D)
                 + 8
+                + 4
                 + ID_LEN * self.closed.len()
-                + (ID_LEN + 4 + stats_len(D)) * self.live.len(),
+                + (ID_LEN + 8 + stats_len(D)) * self.live.len(),
         );
         out.push(VOXEL_RECORD_VERSION);
         put_stats(&mut out, &self.settled);
+        out.extend_from_slice(&self.settled_time.to_le_bytes());
         out.extend_from_slice(&(self.closed.len() as u32).to_le_bytes());
         for id in &self.closed {
             put_id(&mut out, id);
@@ -113,6 +126,7 @@ impl<const D: usize> GlobalVoxel<D> {
             put_id(&mut out, &c.id);
             out.extend_from_slice(&c.seq.to_le_bytes());
             put_stats(&mut out, &c.obs);
+            out.extend_from_slice(&c.time.to_le_bytes());
         }
         out
     }
@@ -125,26 +139,31 @@ impl<const D: usize> GlobalVoxel<D> {
             dim: D,
         };
         let (&version, rest) = bytes.split_first().ok_or(malformed.clone())?;
-        if version != VOXEL_RECORD_VERSION {
+        if version != VOXEL_RECORD_VERSION && version != 2 {
             return Err(RecordError::Version(version));
         }
+        let ticks = version >= 3;
+        let tick = |r: &mut Cursor<'_>| if ticks { r.u32() } else { Some(0) };
         let mut r = Cursor(rest);
         let parse = |r: &mut Cursor<'_>| -> Option<Result<Self, RecordError>> {
             let settled = r.stats::<D>()?;
+            let settled_time = tick(r)?;
             let n = r.count(ID_LEN)?;
             let mut closed = Vec::with_capacity(n);
             for _ in 0..n {
                 closed.push(r.id()?);
             }
-            let n = r.count(ID_LEN + 4 + stats_len(D))?;
+            let n = r.count(ID_LEN + 4 + 4 * usize::from(ticks) + stats_len(D))?;
             let mut live = Vec::with_capacity(n);
             for _ in 0..n {
                 let id = r.id()?;
                 let seq = r.u32()?;
+                let obs = r.stats::<D>()?;
                 live.push(LiveContribution {
                     id,
                     seq,
-                    obs: r.stats::<D>()?,
+                    obs,
+                    time: tick(r)?,
                 });
             }
             if !r.0.is_empty() {
@@ -155,6 +174,7 @@ impl<const D: usize> GlobalVoxel<D> {
             Some(if finite {
                 Ok(GlobalVoxel {
                     settled,
+                    settled_time,
                     closed,
                     live,
                 })
@@ -167,9 +187,25 @@ impl<const D: usize> GlobalVoxel<D> {
 
     /// What was observed in the voxel: settled ⊕ every live contribution, in id order.
     pub fn merged(&self) -> ObsStats<D> {
-        let mut p = self.settled;
+        self.merged_stamped(None).obs
+    }
+
+    /// [`Self::merged`] of a session that forgets with `forgetting`: every contribution faded to the
+    /// latest stamp and merged (the clock rule), as of that stamp.
+    pub fn merged_stamped(&self, forgetting: Option<&Forgetting>) -> Stamped<D> {
+        let mut p = Stamped {
+            obs: self.settled,
+            time: self.settled_time,
+        };
         for c in &self.live {
-            p.merge(&c.obs);
+            let v = Stamped {
+                obs: c.obs,
+                time: c.time,
+            };
+            match forgetting {
+                Some(f) => p.merge(f, &v),
+                None => p.obs.merge(&c.obs),
+            }
         }
         p
     }
@@ -257,6 +293,8 @@ pub struct GlobalMap<const D: usize> {
     voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
     /// Every voxel's [`GlobalVoxel::merged`], kept in step with `voxels`: what lookups gather from.
     merged: ObsMap<D>,
+    /// The session's forgetting (from its half-life).
+    forgetting: Option<Forgetting>,
 }
 
 impl<const D: usize> PartialEq for GlobalMap<D> {
@@ -280,12 +318,16 @@ impl<const D: usize> GlobalMap<D> {
             .map_config()
             .map_err(|_| latentbki::wire::WireError::BadConfig)?;
         // Refuses a sub-voxel kernel: per-voxel statistics cannot express it.
-        let merged = ObsMap::new(map_config).map_err(|_| latentbki::wire::WireError::BadConfig)?;
+        let mut merged =
+            ObsMap::new(map_config).map_err(|_| latentbki::wire::WireError::BadConfig)?;
+        let forgetting = config.forgetting();
+        merged.set_forgetting(forgetting);
         Ok(Self {
             config,
             map_config,
             voxels: HashMap::new(),
             merged,
+            forgetting,
         })
     }
 
@@ -327,16 +369,41 @@ impl<const D: usize> GlobalMap<D> {
     /// Insert a voxel as stored (for loading a saved map).
     pub fn insert_raw(&mut self, key: VoxelKey, mut voxel: GlobalVoxel<D>) {
         voxel.live.sort_by_key(|c| c.id);
-        self.merged.set_observations(key, &voxel.merged());
+        let m = voxel.merged_stamped(self.forgetting.as_ref());
+        self.merged.set_stamped(key, &m.obs, m.time);
+        if self.forgetting.is_some() {
+            self.set_time(m.time); // the clock: the latest stamp held
+        }
         self.voxels.insert(key, voxel);
+    }
+
+    /// How the session's maps forget (`None`: they do not).
+    pub fn forgetting(&self) -> Option<Forgetting> {
+        self.forgetting
+    }
+
+    /// Move the map's clock to tick `now` (never backwards): reads fade every voxel to it. Applying a
+    /// summary moves it to the summary's stamp if that is later.
+    pub fn set_time(&mut self, now: u32) {
+        if now > self.merged.time() {
+            self.merged.set_time(now);
+        }
+    }
+
+    /// The map's clock (0 when the session does not forget).
+    pub fn time(&self) -> u32 {
+        self.merged.time()
     }
 
     /// Apply one decoded summary from `(robot, session)`'s frame `seq`.
     pub fn apply(&mut self, robot: u16, session: u32, seq: u32, s: &Summary<D>) -> Applied {
         let applied = self.apply_to_voxel(robot, session, seq, s);
         if matches!(applied, Applied::Merged | Applied::Updated) {
-            let merged = self.voxels[&s.key].merged();
-            self.merged.set_observations(s.key, &merged);
+            let m = self.voxels[&s.key].merged_stamped(self.forgetting.as_ref());
+            self.merged.set_stamped(s.key, &m.obs, m.time);
+            if let Some(t) = s.time.filter(|_| self.forgetting.is_some()) {
+                self.set_time(t);
+            }
         }
         applied
     }
@@ -347,8 +414,11 @@ impl<const D: usize> GlobalMap<D> {
             session,
             residency: s.residency,
         };
+        let time = s.time.unwrap_or(0);
+        let forgetting = self.forgetting;
         let v = self.voxels.entry(s.key).or_insert_with(|| GlobalVoxel {
             settled: ObsStats::EMPTY,
+            settled_time: 0,
             closed: Vec::new(),
             live: Vec::new(),
         });
@@ -364,7 +434,17 @@ impl<const D: usize> GlobalMap<D> {
             if let Ok(i) = at {
                 v.live.remove(i);
             }
-            v.settled.merge(&s.obs);
+            match &forgetting {
+                Some(f) => {
+                    let mut settled = Stamped {
+                        obs: v.settled,
+                        time: v.settled_time,
+                    };
+                    settled.merge(f, &Stamped { obs: s.obs, time });
+                    (v.settled, v.settled_time) = (settled.obs, settled.time);
+                }
+                None => v.settled.merge(&s.obs),
+            }
             v.closed.push(id);
             return Applied::Merged;
         }
@@ -375,6 +455,7 @@ impl<const D: usize> GlobalMap<D> {
                     id,
                     seq,
                     obs: s.obs,
+                    time,
                 };
                 Applied::Updated
             }
@@ -385,6 +466,7 @@ impl<const D: usize> GlobalMap<D> {
                         id,
                         seq,
                         obs: s.obs,
+                        time,
                     },
                 );
                 Applied::Updated
@@ -392,9 +474,15 @@ impl<const D: usize> GlobalMap<D> {
         }
     }
 
-    /// What was observed in a voxel: settled ⊕ every live contribution.
+    /// What was observed in a voxel: settled ⊕ every live contribution (faded to the map's clock when the
+    /// session forgets).
     pub fn observations(&self, key: &VoxelKey) -> Option<ObsStats<D>> {
-        self.voxels.get(key).map(GlobalVoxel::merged)
+        let v = self.voxels.get(key)?;
+        let m = v.merged_stamped(self.forgetting.as_ref());
+        Some(match &self.forgetting {
+            Some(f) => m.at(f, self.time()),
+            None => m.obs,
+        })
     }
 
     /// The posterior of any voxel, gathered through the kernel from the observed voxels in reach;

@@ -32,6 +32,7 @@ fn summary(residency: u32, is_final: bool, count: f32, m: f32) -> Summary<D> {
             scatter: [1.0 + count; D],
         },
         at_ceiling: Default::default(),
+        time: None,
     }
 }
 

@@ -29,6 +29,7 @@ fn observe(map: &mut GlobalMap<D>, robot: u16, key: VoxelKey, m: f32) {
         is_final: true,
         obs,
         at_ceiling: Default::default(),
+        time: None,
     };
     map.apply(robot, 1, 0, &s);
 }
