@@ -180,8 +180,28 @@ impl<const D: usize> CodeSums<D> {
     #[inline]
     pub fn add(&mut self, codes: &[i8; D]) {
         self.count = self.count.wrapping_add(1);
-        // Wrapping only so that no overflow check is linked: with n ≤ 255 nothing can wrap.
-        for ((s, q), &c) in self.sum.iter_mut().zip(&mut self.squares).zip(codes) {
+        // Wrapping only so that no overflow check is linked: with n ≤ 255 nothing can wrap. Two dimensions
+        // at a time, each pair of sums read and written together (`ldm`/`stm` on v6-M).
+        let mut sums = self.sum.chunks_exact_mut(2);
+        let mut squares = self.squares.chunks_exact_mut(2);
+        let mut pairs = codes.chunks_exact(2);
+        for ((s, q), c) in (&mut sums).zip(&mut squares).zip(&mut pairs) {
+            if let ([s0, s1], [q0, q1], &[c0, c1]) = (s, q, c) {
+                let (c0, c1) = (i32::from(c0), i32::from(c1));
+                let (a0, a1) = (*s0, *s1);
+                (*s0, *s1) = (a0.wrapping_add(c0), a1.wrapping_add(c1));
+                let (b0, b1) = (*q0, *q1);
+                (*q0, *q1) = (
+                    b0.wrapping_add(c0.wrapping_mul(c0) as u32),
+                    b1.wrapping_add(c1.wrapping_mul(c1) as u32),
+                );
+            }
+        }
+        let rest = sums
+            .into_remainder()
+            .iter_mut()
+            .zip(squares.into_remainder());
+        for ((s, q), &c) in rest.zip(pairs.remainder()) {
             let c = i32::from(c);
             *s = s.wrapping_add(c);
             *q = q.wrapping_add(c.wrapping_mul(c) as u32);

@@ -35,6 +35,15 @@ impl Weights {
     }
     #[inline(always)]
     pub(super) fn apply(&self, _mean: &mut [f32], _up: bool) {}
+    #[inline(always)]
+    pub(super) fn reencode<const D: usize, const P: usize>(
+        &self,
+        codes: &crate::quant::QuantVoxel<D, P>,
+        stats: &crate::obs::ObsStats<D>,
+        dither: &mut crate::quant::Dither,
+    ) -> crate::quant::QuantVoxel<D, P> {
+        codes.reencode(stats, dither)
+    }
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>

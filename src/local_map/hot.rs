@@ -120,7 +120,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                 }
                 acc.merge_into(&mut self.scratch, self.int8_scale);
                 self.mean_weights.apply(&mut self.scratch.mean, true);
-                slot.codes = slot.codes.reencode(&self.scratch, &mut self.dither);
+                slot.codes =
+                    self.mean_weights
+                        .reencode(&slot.codes, &self.scratch, &mut self.dither);
             }
             _ => {}
         }

@@ -37,7 +37,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     }
     #[inline]
     pub(super) fn home(k: VoxelKey) -> usize {
-        ((u64::from(hash(k)) * Self::TABLE as u64) >> 32) as usize
+        let h = hash(k);
+        if Self::TABLE < 1 << 16 {
+            // (h·T) >> 32 from h's 16-bit halves, exactly (T < 2¹⁶: every product fits 32 bits): a 64-bit
+            // product is a library call on v6-M.
+            let t = Self::TABLE as u32;
+            (((h >> 16) * t + (((h & 0xFFFF) * t) >> 16)) >> 16) as usize
+        } else {
+            ((u64::from(h) * Self::TABLE as u64) >> 32) as usize
+        }
     }
     #[inline]
     pub(super) fn next(i: usize) -> usize {
@@ -100,6 +108,29 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                 self.set_entry(j, 0);
                 hole = j;
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn home_from_halves_is_the_64_bit_product() {
+        type Map = LocalMap<4, 30_000, 4, 2>;
+        let mut seed = 0x2545_F491u32;
+        for _ in 0..100_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            let k = VoxelKey::new(
+                seed as i32 >> 12,
+                (seed << 7) as i32 >> 14,
+                seed as i32 >> 20,
+            );
+            let want = ((u64::from(hash(k)) * Map::TABLE as u64) >> 32) as usize;
+            assert_eq!(Map::home(k), want, "{k:?}");
         }
     }
 }

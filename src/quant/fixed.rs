@@ -24,6 +24,20 @@ use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHI
 use crate::obs::{scatter_numerator, CodeSums};
 use half::f16;
 
+/// The per-dimension steps of the cooling: one out-of-line copy on riscv32 without F (its flash is within a
+/// few hundred bytes of 64 KiB), inlined into the passes elsewhere (on v6-M the call and the spills around it
+/// cost more than the work: measured below).
+macro_rules! per_dim_step {
+    ($item:item) => {
+        #[cfg_attr(all(target_arch = "riscv32", not(target_feature = "f")), inline(never))]
+        #[cfg_attr(
+            not(all(target_arch = "riscv32", not(target_feature = "f"))),
+            inline(always)
+        )]
+        $item
+    };
+}
+
 mod bits;
 use bits::*;
 
@@ -74,20 +88,6 @@ impl Int8Fix {
         let v = shift(m * (self.inv_s.m >> 4), e + self.inv_s.e + 4 + MEAN_FRAC);
         v.min(i32::MAX as u32 / 64) as i32
     }
-}
-
-/// The per-dimension steps of the cooling: one out-of-line copy on riscv32 without F (its flash is within a
-/// few hundred bytes of 64 KiB), inlined into the passes elsewhere (on v6-M the call and the spills around it
-/// cost more than the work: measured below).
-macro_rules! per_dim_step {
-    ($item:item) => {
-        #[cfg_attr(all(target_arch = "riscv32", not(target_feature = "f")), inline(never))]
-        #[cfg_attr(
-            not(all(target_arch = "riscv32", not(target_feature = "f"))),
-            inline(always)
-        )]
-        $item
-    };
 }
 
 per_dim_step! {

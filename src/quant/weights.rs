@@ -14,6 +14,13 @@
 //! The shifts are given as breakpoints, because PCA components come sorted by spread: dimension i has shift
 //! sᵢ = the number of used entries of `from` that are ≤ i. Sixteen bytes whatever D is, `Copy` and `const`.
 //! [`MeanWeights::ONES`] (all weights 1) is today's codes, bit for bit.
+//!
+//! A weighed map also codes on a finer grid ([`super::QuantVoxel::reencode_fine`]): once the small
+//! components use their range, the slack the scale keeps (kept until the largest |mᵢ| falls to ¼ of the top
+//! code, 25 % headroom) is the largest error left. On the demo's tile (the robot's map against the f32
+//! reference of all points, RMS ‖Δμ‖/‖μ‖): one step 0.0664, weights 0.0296, weights and the finer grid
+//! 0.0165. The unweighed map keeps the coarser grid, so its codes (and the boards' streams) stay as they
+//! were.
 
 use crate::config::ConfigError;
 
@@ -86,11 +93,9 @@ impl MeanWeights {
     /// spread to within a factor √2.
     ///
     /// Measured on the demo's tile (the robot's map against the f32 reference of all points, RMS
-    /// ‖Δμ‖/‖μ‖): one step for all 0.0664, these weights 0.0296. One octave less everywhere (the voxel's
-    /// scale is set by its largest weighed component, and among ≈ 60 small components one reaches 2–3 of
-    /// their spread) measured 0.0261 but is not the rule: the gain is small, and the demo's link then
-    /// printed 14.18 wire bytes per point (over its bound of 14; that figure varies 13.7–14.2 with the
-    /// link's fault seed for either rule).
+    /// ‖Δμ‖/‖μ‖, with the finer grid a weighed map codes on): these weights 0.0165; one octave less
+    /// everywhere 0.0177 (on the coarse grid it was the better rule, 0.0261 against 0.0296: there the
+    /// largest of ≈ 60 small weighed components, 2–3 of their spread, set the scale more often).
     pub fn from_spreads(spreads: &[f32]) -> Self {
         let mut w = Self::ONES;
         let Some(&lead) = spreads.first() else {
@@ -131,6 +136,25 @@ impl MeanWeights {
                 break;
             }
             start = end;
+        }
+    }
+}
+
+#[cfg(feature = "mean-weights")]
+impl MeanWeights {
+    /// Codes of a weighed mean: [`super::QuantVoxel::reencode_fine`] (the finer grid) unless every weight
+    /// is 1, where the codes stay those of [`super::QuantVoxel::reencode`], bit for bit.
+    #[inline]
+    pub(crate) fn reencode<const D: usize, const P: usize>(
+        &self,
+        codes: &super::QuantVoxel<D, P>,
+        stats: &crate::obs::ObsStats<D>,
+        dither: &mut super::Dither,
+    ) -> super::QuantVoxel<D, P> {
+        if self.is_ones() {
+            codes.reencode(stats, dither)
+        } else {
+            codes.reencode_fine(stats, dither)
         }
     }
 }

@@ -25,7 +25,7 @@ impl Parts {
     }
 }
 
-inline_with_fpu! {
+per_dim_step! {
 /// Leading zeros of a u32, one copy (riscv32imac has no instruction for it; its expansion is ≈ 20).
 pub(super) fn lz(v: u32) -> u32 {
     #[cfg(target_abi = "eabi")]
