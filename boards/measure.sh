@@ -92,6 +92,8 @@ def runs(which):
 off, _ = runs("off")
 on, views = runs("on")
 flash = int(open(f"{out}/flash-forgetting.txt").read())
+print("| measure | value | goal |")
+print("|---|---|---|")
 for name, label in [("depth_f3", "f32 features"), ("depth_f3_i8", "i8 features")]:
     p = sum(n for n, _ in on[name])
     a = sum(i for _, i in off[name]) / sum(n for n, _ in off[name])
