@@ -68,6 +68,12 @@ if [ "${1:-}" = --forgetting ]; then
     QEMU_PLUGIN="$OUT/insncount.so" QEMU_PLUGIN_LOG="$OUT/insn-$run.log" QEMU_SERIAL="$OUT/uart-$run.bin" \
       ./run-qemu.sh "$elf" > "$OUT/stdout-$run.txt" || { echo "firmware ($run) failed: exit code $?" >&2; exit 1; }
     grep -q '^done$' "$OUT/stdout-$run.txt" || { echo "firmware ($run) did not finish" >&2; exit 1; }
+    # A start marker seen twice without its stop means regions went uncounted (seen once, with a build
+    # whose stops the plugin never saw): refuse to print such counts.
+    if grep -q 'inside a region' "$OUT/insn-$run.log"; then
+      echo "the instruction counter saw unbalanced markers ($run build): its counts are not the map's work" >&2
+      exit 1
+    fi
   done
   "$LLVM_BIN/llvm-size" -A -d "$FG_ELF" | awk '$1==".vector_table"{vt=$2} $1==".text"{t=$2} $1==".rodata"{ro=$2}
     $1==".data"{d=$2} END{print vt+t+ro+d}' > "$OUT/flash-forgetting.txt"
