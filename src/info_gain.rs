@@ -91,6 +91,7 @@ impl core::fmt::Display for ScoreError {
 
 impl core::error::Error for ScoreError {}
 
+#[inline(never)] // one copy of the search in flash
 fn count_at(hits: &[(VoxelKey, f32)], key: VoxelKey) -> f32 {
     hits.binary_search_by_key(&key, |h| h.0)
         .map_or(0.0, |i| hits[i].1)
@@ -139,12 +140,11 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
     }
     let rel = rel.get(..offsets.len()).unwrap_or(&[]);
     // Bit a of reaches[s]: window position s is a source of target a (at CENTRE + rel[a]).
-    let mut reaches = [0u32; WIN3];
-    for (a, &ra) in rel.iter().enumerate() {
-        for &rp in rel {
-            if let Some(m) = reaches.get_mut((CENTRE + ra + rp) as usize) {
-                *m |= 1 << a;
-            }
+    let mut reaches = [0u32; SLOTS];
+    let n = rel.len();
+    for ap in 0..n * n {
+        if let (Some(&ra), Some(&rp)) = (rel.get(ap / n), rel.get(ap % n)) {
+            reaches[(CENTRE + ra + rp) as usize & (SLOTS - 1)] |= 1 << (ap / n);
         }
     }
     let mut sources = [0.0f32; SLOTS];
@@ -183,10 +183,16 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
                 }
                 k_sum += k * c;
             }
-            score += voxel_gain(prior_lambda + k_sum, w);
+            score += gain(prior_lambda + k_sum, w);
         }
     }
     Ok(score)
+}
+
+/// [`voxel_gain`], once in the code for both paths of [`view_score`] (flash on a microcontroller).
+#[inline(never)]
+fn gain(lambda: f32, w: f32) -> f32 {
+    voxel_gain(lambda, w)
 }
 
 /// Offsets of an f = 3 filter: the targets of one hit (≤ 32, one bit each).
@@ -234,49 +240,26 @@ fn place_sources(sources: &mut [f32; SLOTS], hits: &[(VoxelKey, f32)], i: usize)
     }
 }
 
-/// Move the map counts read for the window at `from` to where they sit in the window at `to`; NaN (not
+/// Move the map counts read for the window at `from` to where they sit in the window at `to` when the
+/// step is along z only (the common step between consecutive hits: z is the key's last field); NaN (not
 /// read yet) elsewhere.
 fn carry_counts(counts: &mut [f32; SLOTS], from: Option<VoxelKey>, to: VoxelKey) {
-    let w = i32::from(WIN);
-    let d = from.and_then(|from| {
-        Some([
-            to.x.checked_sub(from.x)?,
-            to.y.checked_sub(from.y)?,
-            to.z.checked_sub(from.z)?,
-        ])
-    });
-    let Some(d) = d.filter(|d| d.iter().all(|v| v.abs() < w)) else {
+    let w = WIN as usize;
+    let step = from
+        .filter(|f| (f.x, f.y) == (to.x, to.y))
+        .and_then(|f| usize::try_from(to.z.checked_sub(f.z)?).ok())
+        .filter(|&dz| dz < w);
+    let Some(dz) = step else {
         *counts = [f32::NAN; SLOTS];
         return;
     };
-    // Position q of the new window is position q + shift of the old one, where that lies inside it.
-    let shift = (d[0] * w + d[1]) * w + d[2];
-    let n = WIN3 as i32;
-    let (src, dst) = (shift.max(0), (-shift).max(0));
-    let len = n - shift.abs();
-    if let (Ok(src), Ok(dst), Ok(len)) = (
-        usize::try_from(src),
-        usize::try_from(dst),
-        usize::try_from(len),
-    ) {
-        if src + len <= WIN3 && dst + len <= WIN3 {
-            counts.copy_within(src..src + len, dst);
-        }
-    }
-    let inside = |v: i32, dv: i32| (0..w).contains(&(v + dv));
-    for x in 0..w {
-        for y in 0..w {
-            let row = ((x * w + y) * w) as usize;
-            let Some(row) = counts.get_mut(row..row + w as usize) else {
-                continue;
-            };
-            let whole = !(inside(x, d[0]) && inside(y, d[1]));
-            for (z, c) in (0..w).zip(row) {
-                if whole || !inside(z, d[2]) {
-                    *c = f32::NAN;
-                }
-            }
-        }
+    // Position q takes old q + dz, except the last dz of each z row.
+    for q in 0..WIN3 {
+        counts[q & (SLOTS - 1)] = if q % w + dz < w {
+            counts[(q + dz) & (SLOTS - 1)]
+        } else {
+            f32::NAN
+        };
     }
 }
 
@@ -311,7 +294,7 @@ fn generic<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
             }
             let lambda = prior_lambda
                 + gathered_count(lut, map, target).map_err(|_| ScoreError::SubVoxelKernel)?;
-            score += voxel_gain(lambda, w);
+            score += gain(lambda, w);
         }
     }
     Ok(score)
