@@ -172,10 +172,8 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
             for (&rp, &k) in rel.iter().zip(weights) {
                 // In 0..WIN3 (|ra|, |rp| ≤ CENTRE / 2); the mask lets the compiler see it in bounds.
                 let s = (t + rp) as usize & (SLOTS - 1);
-                let n = sources[s];
-                if n > 0.0 {
-                    w += k * n;
-                }
+                // 0 where no hit with n > 0: adding k · 0 = +0 leaves w (≥ +0) as skipping it would.
+                w += k * sources[s];
                 let mut c = counts[s];
                 if c.is_nan() {
                     c = map.observed_count(hit.offset(window_offset(s)));
