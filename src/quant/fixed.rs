@@ -134,19 +134,27 @@ struct ScatterUnits {
     r1: u32,
 }
 
+impl ScatterUnits {
+    /// The old scatter of minifloat key `k` (code plus base) in units: exponent k/4, mantissa 1 + (k%4)/4.
+    fn old_units(&self, k: u32) -> u32 {
+        if !self.old || k < 4 {
+            0
+        } else {
+            // (4 + f) · 1/s² mantissa < 7 · 2²⁴.
+            shift(
+                (4 + (k & 3)) * self.inv_s2,
+                (k >> 2) as i32 + self.old_shift,
+            )
+        }
+    }
+}
+
 per_dim_step! {
-/// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `k` the
-/// old minifloat code (with its base), `d` the distance of the means (MEAN_FRAC fraction bits), `numer`
-/// the sums' n₁Σc² − (Σc)². Not inlined: one copy of the body keeps the loop small.
-fn merged_scatter_bits(u: &ScatterUnits, k: u32, d: i32, numer: u32) -> u32 {
+/// One dimension's merged scatter, S₀ + N/n₁ + (n₀n₁/n)·d², as the f32 bit pattern of its value: `old` the
+/// old scatter in units ([`ScatterUnits::old_units`]), `d` the distance of the means (MEAN_FRAC fraction
+/// bits), `numer` the sums' n₁Σc² − (Σc)².
+fn merged_scatter_bits(u: &ScatterUnits, old: u32, d: i32, numer: u32) -> u32 {
     let g = u.g;
-    // The old scatter's minifloat: exponent k/4, mantissa 1 + (k%4)/4.
-    let old = if !u.old || k < 4 {
-        0
-    } else {
-        // (4 + f) · 1/s² mantissa < 7 · 2²⁴.
-        shift((4 + (k & 3)) * u.inv_s2, (k >> 2) as i32 + u.old_shift)
-    };
     // g ∈ [−15, 15]: both shifts are by 17 to 51 bits, each result saturated to 32 bits (so is the sum).
     let within = shr_sat32(mul32(numer, u.r1), (32 + g) as u32);
     let d2 = mul32(d.unsigned_abs(), d.unsigned_abs());
@@ -224,7 +232,18 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             w,
             r1: rn1,
         };
+        // The old scatters in units, one per Ψ code (32) instead of one per dimension (64): a voxel's codes
+        // share their base, so the code alone picks the value.
         let base_old = u32::from(self.psi_base);
+        let mut old_units = [0u32; 1 << super::PSI_BITS];
+        if ctx.old {
+            // Rolled (the trip count hidden, as `dims`): unrolled it costs riscv32imac ≈ 1 KB of flash.
+            for c in 0..core::hint::black_box(old_units.len()) {
+                if let Some(o) = old_units.get_mut(c) {
+                    *o = ctx.old_units(c as u32 + base_old);
+                }
+            }
+        }
         let mut mean = [0i32; D];
         let mut scatter = [0u32; D];
         let mut max_abs = 0u32;
@@ -243,7 +262,10 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             max_abs = max_abs.max(m.unsigned_abs());
             *b = merged_scatter_bits(
                 &ctx,
-                code_at(psi_part, super::PSI_BITS, i) + base_old,
+                old_units
+                    .get(code_at(psi_part, super::PSI_BITS, i) as usize)
+                    .copied()
+                    .unwrap_or(0),
                 d,
                 scatter_numerator(n1, sum, sq),
             );
