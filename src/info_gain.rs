@@ -31,6 +31,9 @@ use crate::kernel::KernelLut;
 use crate::key::VoxelKey;
 use crate::obs::{GatherError, ObsLookup};
 
+mod window;
+use window::{carry_counts, place_sources, window_offset, CENTRE, MAX_TARGETS, SLOTS, WIN};
+
 /// The λ an unseen voxel under a flat prior is taken to have (see the module docs).
 pub const UNSEEN_LAMBDA: f32 = 0.05;
 
@@ -191,74 +194,6 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
 #[inline(never)]
 fn gain(lambda: f32, w: f32) -> f32 {
     voxel_gain(lambda, w)
-}
-
-/// Offsets of an f = 3 filter: the targets of one hit (≤ 32, one bit each).
-const MAX_TARGETS: usize = 27;
-/// Side of the window of voxels a hit's targets' sources span with f = 3: ±2.
-const WIN: i16 = 5;
-const WIN3: usize = 125;
-/// The window's arrays are a power of two long, so a masked index needs no bounds check.
-const SLOTS: usize = 128;
-const CENTRE: i16 = WIN3 as i16 / 2;
-
-/// The offset from a window's hit to window position `s` (x-major).
-fn window_offset(s: usize) -> [i8; 3] {
-    let w = WIN as usize;
-    let r = w / 2;
-    [
-        (s / (w * w)) as i8 - r as i8,
-        (s / w % w) as i8 - r as i8,
-        (s % w) as i8 - r as i8,
-    ]
-}
-
-/// The point counts of the hits (those with n > 0) within ±2 of `hits[i]`, by window position; 0 where
-/// none. They lie in the run of hits whose x is within ±2 (x is the key's first field). Differences wrap:
-/// keys stay within ±2³⁰, as [`VoxelKey::offset`] requires.
-fn place_sources(sources: &mut [f32; SLOTS], hits: &[(VoxelKey, f32)], i: usize) {
-    *sources = [0.0; SLOTS];
-    let Some(&(c, _)) = hits.get(i) else {
-        return;
-    };
-    let r = i32::from(WIN / 2);
-    let lo = hits.partition_point(|h| h.0.x < c.x.saturating_sub(r));
-    let x_end = c.x.saturating_add(r);
-    for &(k, n) in hits.get(lo..).unwrap_or(&[]) {
-        if k.x > x_end {
-            break;
-        }
-        let d = |a: i32, b: i32| a.wrapping_sub(b).wrapping_add(r);
-        let (dx, dy, dz) = (d(k.x, c.x), d(k.y, c.y), d(k.z, c.z));
-        let w = i32::from(WIN);
-        // Each in 0..WIN after the +r: one unsigned compare per axis.
-        if n > 0.0 && (dx as u32) < w as u32 && (dy as u32) < w as u32 && (dz as u32) < w as u32 {
-            sources[((dx * w + dy) * w + dz) as usize & (SLOTS - 1)] = n;
-        }
-    }
-}
-
-/// Move the map counts read for the window at `from` to where they sit in the window at `to` when the
-/// step is along z only (the common step between consecutive hits: z is the key's last field); NaN (not
-/// read yet) elsewhere.
-fn carry_counts(counts: &mut [f32; SLOTS], from: Option<VoxelKey>, to: VoxelKey) {
-    let w = WIN as usize;
-    let step = from
-        .filter(|f| (f.x, f.y) == (to.x, to.y))
-        .and_then(|f| usize::try_from(to.z.checked_sub(f.z)?).ok())
-        .filter(|&dz| dz < w);
-    let Some(dz) = step else {
-        *counts = [f32::NAN; SLOTS];
-        return;
-    };
-    // Position q takes old q + dz, except the last dz of each z row.
-    for q in 0..WIN3 {
-        counts[q & (SLOTS - 1)] = if q % w + dz < w {
-            counts[(q + dz) & (SLOTS - 1)]
-        } else {
-            f32::NAN
-        };
-    }
 }
 
 /// [`view_score`] for filters wider than f = 3: per hit and offset, binary searches over the hits (stopping
