@@ -26,20 +26,25 @@ pub struct Room {
 }
 
 impl Room {
+    /// The table both rooms have.
+    const TABLE: Block = Block {
+        lo: [0.9, 0.4, 0.0],
+        hi: [1.9, 1.2, 0.75],
+        category: 3,
+    };
+    /// The cabinet both rooms have.
+    const CABINET: Block = Block {
+        lo: [3.4, 0.2, 0.0],
+        hi: [3.95, 1.3, 1.8],
+        category: 4,
+    };
+
     /// A 4 m × 3 m room, 2.5 m high, with a table, a cabinet and a chair.
     pub const DEFAULT: Self = Self {
         size: [4.0, 3.0, 2.5],
         blocks: [
-            Block {
-                lo: [0.9, 0.4, 0.0],
-                hi: [1.9, 1.2, 0.75],
-                category: 3,
-            },
-            Block {
-                lo: [3.4, 0.2, 0.0],
-                hi: [3.95, 1.3, 1.8],
-                category: 4,
-            },
+            Self::TABLE,
+            Self::CABINET,
             Block {
                 lo: [2.2, 2.5, 0.0],
                 hi: [2.7, 2.95, 0.45],
@@ -58,16 +63,8 @@ impl Room {
                 hi: [10.0, 2.6, 2.5],
                 category: WALL,
             },
-            Block {
-                lo: [0.9, 0.4, 0.0],
-                hi: [1.9, 1.2, 0.75],
-                category: 3,
-            },
-            Block {
-                lo: [3.4, 0.2, 0.0],
-                hi: [3.95, 1.3, 1.8],
-                category: 4,
-            },
+            Self::TABLE,
+            Self::CABINET,
         ],
     };
 
