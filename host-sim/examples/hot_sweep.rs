@@ -100,7 +100,11 @@ fn floor_row(name: &str, s: usize) {
     let seq = voxel_sequence(s);
     let per_k = |n: usize| 1000.0 * n as f32 / seq.len().max(1) as f32;
     let distinct = seq.iter().copied().max().map_or(0, |m| m as usize + 1);
-    print!("| {name} | {} | {distinct} | {:.0} |", seq.len(), per_k(distinct));
+    print!(
+        "| {name} | {} | {distinct} | {:.0} |",
+        seq.len(),
+        per_k(distinct)
+    );
     for h in [8, 32, 128, 254] {
         print!(" {:.0} |", per_k(belady_misses(&seq, h)));
     }
