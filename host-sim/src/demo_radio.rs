@@ -33,6 +33,7 @@ pub const CODEC: latentbki::wire::SummaryCodec = latentbki::wire::SummaryCodec {
     mean_bits_growth: 3,
     lead: 8,
     lead_bits: 3,
+    rice: true,
 };
 
 /// Bytes the robot may send per tick.

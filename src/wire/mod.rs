@@ -19,10 +19,12 @@
 
 pub mod codec;
 pub mod messages;
+pub mod rice;
 pub mod summary;
 
 pub use codec::{
-    decode_codes, decode_codes_as, encode_codes, encode_codes_as, mean_error_bound, stamped_class,
+    decode_codes, decode_codes_as, encode_codes, encode_codes_as, encode_rice, mean_error_bound,
+    stamped_class,
     wire_count, SummaryCodec, MAX_COUNT,
 };
 pub use messages::{
@@ -82,3 +84,5 @@ impl core::error::Error for WireError {}
 
 #[cfg(test)]
 mod tests;
+#[cfg(all(test, feature = "rice-codes"))]
+mod rice_tests;

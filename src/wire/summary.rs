@@ -85,6 +85,17 @@ fn take_varint(bytes: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, Wi
     Err(WireError::Malformed)
 }
 
+/// The quantized part of a summary of `count` points at `*at` (its length read from it when Rice-coded).
+fn take_codes<'a, const D: usize>(
+    codec: SummaryCodec,
+    count: u32,
+    bytes: &'a [u8],
+    at: &mut usize,
+) -> Result<&'a [u8], WireError> {
+    let len = codec.codes_len(D, count, bytes.get(*at..).unwrap_or_default())?;
+    take(bytes, at, len)
+}
+
 pub(super) const fn zigzag(v: i32) -> u32 {
     ((v << 1) ^ (v >> 31)) as u32
 }
@@ -186,19 +197,23 @@ pub fn decode_summary<const D: usize>(
         let n = take(bytes, at, 4)?;
         let n = f32::from_le_bytes([n[0], n[1], n[2], n[3]]);
         let class = stamped_class(n).ok_or(WireError::BadCount)?;
-        let codes = take(bytes, at, codec.code_len_for(D, class))?;
+        let codes = take_codes::<D>(codec, class, bytes, at)?;
         let obs = decode_codes_as::<D>(codec, class, n, codes)?;
         (class, obs, codes, Some(time))
     } else {
         if count > u64::from(MAX_COUNT) {
             return Err(WireError::BadCount);
         }
-        let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
+        let codes = take_codes::<D>(codec, count as u32, bytes, at)?;
         let obs = decode_codes::<D>(codec, count as f32, codes)?;
         (count as u32, obs, codes, None)
     };
-    let psi_at = codec.mean_len_for(D, count);
-    let rest_at = codec.lead_len_for(count);
+    let psi_at = codes.len() - codec.scatter_len(count).min(codes.len());
+    let rest_at = match (codec.is_rice(), codec.lead) {
+        (_, 0) => 0,
+        (true, _) => 1,
+        (false, _) => codec.lead_len_for(count),
+    };
     let at_ceiling = Ceiling {
         mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
         psi: codes.get(psi_at) == Some(&u8::MAX),

@@ -93,7 +93,8 @@ pub(super) fn append<const D: usize>(
     let c = match codes {
         Codes::Queued(codes) => {
             // The queue entry has room for the largest codes; this summary's are the leading ones.
-            let codes = codes.get(..codec.code_len_for(D, count)).unwrap_or(codes);
+            let len = codec.codes_len(D, count, codes).unwrap_or(codes.len());
+            let codes = codes.get(..len).unwrap_or(codes);
             match out.get_mut(at..at + codes.len()) {
                 Some(o) => {
                     o.copy_from_slice(codes);
