@@ -371,7 +371,11 @@ pub fn encode_codes_as<const D: usize>(
         encode_band(v, scratch, bits, o);
         at += n;
     }
-    encode_scatter::<D>(blocks, &stats.scatter, out.get_mut(at..).unwrap_or_default());
+    encode_scatter::<D>(
+        blocks,
+        &stats.scatter,
+        out.get_mut(at..).unwrap_or_default(),
+    );
     Ok(len)
 }
 
@@ -397,8 +401,7 @@ pub fn encode_rice<const D: usize>(
     let mean = super::rice::encode_bands(
         policy,
         [lead_band, rest_band],
-        norm,
-        count,
+        (norm, count),
         cap,
         out,
         |c| log_value(c, SCALE_OFFSET),
@@ -535,7 +538,10 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
         // Rounding to the nearest multiple of the step: half a step per component (a sender coarsens
         // its steps rather than clamp a value).
         let mut sq = 0.0;
-        for (code, len) in codes.iter().zip([lead, dim - lead].into_iter().filter(|&l| l > 0)) {
+        for (code, len) in codes
+            .iter()
+            .zip([lead, dim - lead].into_iter().filter(|&l| l > 0))
+        {
             let e = log_value(*code, SCALE_OFFSET) / 2.0;
             sq += len as f32 * e * e;
         }

@@ -37,26 +37,58 @@ pub struct Policy {
     pub lead_per_doubling: u8,
     /// The same for the other components.
     pub rest_per_doubling: u8,
+    /// Eighths of an octave the other components' step of a one-point voxel is coarser: such a voxel
+    /// weighs little in the posteriors around it.
+    pub rest_single: i8,
 }
 
 impl Policy {
     /// The policy Rice sessions are encoded with (measured on the demo's map, `demo --codec-study`).
     pub const DEFAULT: Self = Self {
         lead_eighths: 48,
-        rest_eighths: 48,
+        rest_eighths: 44,
         lead_per_doubling: 4,
-        rest_per_doubling: 0,
+        rest_per_doubling: 2,
+        rest_single: 0,
     };
 }
 
-/// Bits written LSB first into a zeroed buffer.
-struct BitWriter<'a> {
-    out: &'a mut [u8],
-    bit: usize,
+/// Bits written LSB first into a zeroed buffer (bits past its end are counted, not written).
+pub(super) struct BitWriter<'a> {
+    pub(super) out: &'a mut [u8],
+    pub(super) bit: usize,
 }
 
+/// Longest Exp-Golomb prefix: values below 2³⁵ − 1.
+const EXP_GOLOMB_MAX_PREFIX: u32 = 34;
+
 impl BitWriter<'_> {
-    fn put(&mut self, v: u32, n: u32) {
+    /// Exp-Golomb code of v (order 0): with w = v + 1 of b bits, b − 1 one bits, a zero bit, then the
+    /// low b − 1 bits of w, least significant first. v < 2³⁵ − 1.
+    pub(super) fn exp_golomb(&mut self, v: u64) {
+        let w = v.saturating_add(1);
+        let len = 63 - w.leading_zeros();
+        for _ in 0..len {
+            self.put(1, 1);
+        }
+        self.put(0, 1);
+        self.put(w as u32, len.min(32));
+        if len > 32 {
+            self.put((w >> 32) as u32, len - 32);
+        }
+    }
+
+    /// Bytes written (the last one padded with 0 bits), if they all fit.
+    pub(super) fn bytes(&self) -> Result<usize, WireError> {
+        let n = self.bit.div_ceil(8);
+        if n <= self.out.len() {
+            Ok(n)
+        } else {
+            Err(WireError::BufferFull)
+        }
+    }
+
+    pub(super) fn put(&mut self, v: u32, n: u32) {
         for i in 0..n as usize {
             if let Some(b) = self.out.get_mut((self.bit + i) / 8) {
                 *b |= ((v >> i & 1) as u8) << ((self.bit + i) % 8);
@@ -67,16 +99,42 @@ impl BitWriter<'_> {
 }
 
 /// Bits read LSB first; reading past the end is [`WireError::Truncated`].
-struct BitReader<'a> {
-    bytes: &'a [u8],
-    bit: usize,
+pub(super) struct BitReader<'a> {
+    pub(super) bytes: &'a [u8],
+    pub(super) bit: usize,
 }
 
 impl BitReader<'_> {
-    fn get(&mut self, n: u32) -> Result<u32, WireError> {
+    /// An Exp-Golomb value ([`BitWriter::exp_golomb`]); a prefix longer than 34 is malformed.
+    pub(super) fn exp_golomb(&mut self) -> Result<u64, WireError> {
+        let mut len = 0;
+        while self.get(1)? == 1 {
+            len += 1;
+            if len > EXP_GOLOMB_MAX_PREFIX {
+                return Err(WireError::Malformed);
+            }
+        }
+        let low = u64::from(self.get(len.min(32))?);
+        let high = if len > 32 {
+            u64::from(self.get(len - 32)?) << 32
+        } else {
+            0
+        };
+        Ok(((1u64 << len) | high | low) - 1)
+    }
+
+    /// Bytes read (the last one whole).
+    pub(super) fn bytes(&self) -> usize {
+        self.bit.div_ceil(8)
+    }
+
+    pub(super) fn get(&mut self, n: u32) -> Result<u32, WireError> {
         let mut v = 0u32;
         for i in 0..n as usize {
-            let byte = self.bytes.get((self.bit + i) / 8).ok_or(WireError::Truncated)?;
+            let byte = self
+                .bytes
+                .get((self.bit + i) / 8)
+                .ok_or(WireError::Truncated)?;
             v |= u32::from(byte >> ((self.bit + i) % 8) & 1) << i;
         }
         self.bit += n as usize;
@@ -156,7 +214,9 @@ fn step_codes(policy: Policy, norm_codes: [u8; 2], count: u32) -> [u8; 2] {
     };
     [
         code(norm_codes[0], policy.lead_eighths, policy.lead_per_doubling),
-        code(norm_codes[1], policy.rest_eighths, policy.rest_per_doubling),
+        code(norm_codes[1], policy.rest_eighths, policy.rest_per_doubling)
+            .saturating_add_signed(if count < 2 { policy.rest_single } else { 0 })
+            .max(1),
     ]
 }
 
@@ -167,8 +227,7 @@ fn step_codes(policy: Policy, norm_codes: [u8; 2], count: u32) -> [u8; 2] {
 pub(super) fn encode_bands(
     policy: Policy,
     bands: [&[f32]; 2],
-    norm: f32,
-    count: u32,
+    (norm, count): (f32, u32),
     cap: usize,
     out: &mut [u8],
     step_value: impl Fn(u8) -> f32,
@@ -188,9 +247,13 @@ pub(super) fn encode_bands(
     // The policy's steps, at least as coarse as keeps every value within ±MAX_Q steps (never clamped).
     let mut finest = step_codes(policy, bases, count);
     for (f, band) in finest.iter_mut().zip(&bands) {
-        let peak = band
-            .iter()
-            .fold(0.0f32, |a, &v| if libm::fabsf(v) > a { libm::fabsf(v) } else { a });
+        let peak = band.iter().fold(0.0f32, |a, &v| {
+            if libm::fabsf(v) > a {
+                libm::fabsf(v)
+            } else {
+                a
+            }
+        });
         if peak > 0.0 && peak.is_finite() {
             *f = (*f).max(norm_code(peak / (MAX_Q as f32 + 0.5)));
         }
@@ -309,6 +372,55 @@ pub const fn cap(dim: usize, lead: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn exp_golomb_round_trips_up_to_its_limit() {
+        let values = [
+            0u64,
+            1,
+            2,
+            3,
+            6,
+            7,
+            127,
+            1 << 20,
+            u64::from(u32::MAX),
+            (1 << 35) - 2,
+        ];
+        let mut buf = [0u8; 128];
+        let mut w = BitWriter {
+            out: &mut buf,
+            bit: 0,
+        };
+        for v in values {
+            w.exp_golomb(v);
+        }
+        assert_eq!(w.bit, 1 + 3 + 3 + 5 + 5 + 7 + 15 + 41 + 65 + 69);
+        let mut r = BitReader {
+            bytes: &buf,
+            bit: 0,
+        };
+        for v in values {
+            assert_eq!(r.exp_golomb().unwrap(), v);
+        }
+        // The spec's examples, in stream order: 0 → 0, 1 → 100, 2 → 101, 3 → 11000.
+        let mut spec = [0u8; 2];
+        let mut w = BitWriter {
+            out: &mut spec,
+            bit: 0,
+        };
+        for v in 0..4 {
+            w.exp_golomb(v);
+        }
+        assert_eq!((w.bit, spec), (12, [0b1101_0010, 0b0000_0001]));
+        // 35 one bits: malformed.
+        let ones = [0xff; 8];
+        let mut r = BitReader {
+            bytes: &ones,
+            bit: 0,
+        };
+        assert_eq!(r.exp_golomb(), Err(WireError::Malformed));
+    }
 
     #[test]
     fn symbols_round_trip_for_every_k() {

@@ -46,11 +46,17 @@ fn rice_summaries_round_trip_within_their_bound_and_take_the_bytes_they_say() {
             *s = sample(i as u32 + 1, (1u32 << (i % 8)) as f32 + (i / 8) as f32);
             let mut codes = [0u8; 128];
             let n = encode_codes(codec, s, &mut codes).unwrap();
-            assert!(n <= codec.code_len(64), "{n} > the most a summary's codes take");
+            assert!(
+                n <= codec.code_len(64),
+                "{n} > the most a summary's codes take"
+            );
             assert_eq!(codec.codes_len(64, s.count as u32, &codes).unwrap(), n);
             let key = VoxelKey::new(i as i32, -(i as i32), 3);
-            at += encode_summary(&mut base, key, 1, true, s.count as u32, &codes[..n], &mut frame[at..])
-                .unwrap();
+            let id = (key, 1 + i as u32 / 3, i % 2 == 0);
+            let h =
+                encode_rice_head(&mut base, id, s.count as u32, None, &mut frame[at..]).unwrap();
+            frame[at + h..at + h + n].copy_from_slice(&codes[..n]);
+            at += h + n;
         }
         let batch = VoxelBatch {
             count: sent.len() as u16,
@@ -59,7 +65,9 @@ fn rice_summaries_round_trip_within_their_bound_and_take_the_bytes_they_say() {
         let got: heapless::Vec<Summary<64>, 12> =
             batch.iter::<64>(codec).map(|r| r.unwrap()).collect();
         assert_eq!(got.len(), sent.len());
-        for (g, s) in got.iter().zip(&sent) {
+        for (i, (g, s)) in got.iter().zip(&sent).enumerate() {
+            assert_eq!(g.key, VoxelKey::new(i as i32, -(i as i32), 3));
+            assert_eq!((g.residency, g.is_final), (1 + i as u32 / 3, i % 2 == 0));
             let mut codes = [0u8; 128];
             encode_codes(codec, s, &mut codes).unwrap();
             let bound = mean_error_bound(codec, 64, &codes, s.count as u32);
@@ -109,7 +117,10 @@ fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_ste
     };
     assert_eq!(encode_codes(RICE, &zero, &mut codes).unwrap(), 2);
     assert_eq!(&codes[..2], &[0, 0]);
-    assert_eq!(decode_codes::<64>(RICE, 1.0, &codes[..2]).unwrap().mean, [0.0; 64]);
+    assert_eq!(
+        decode_codes::<64>(RICE, 1.0, &codes[..2]).unwrap().mean,
+        [0.0; 64]
+    );
 }
 
 #[test]
@@ -141,7 +152,15 @@ fn cut_or_damaged_rice_codes_are_refused_or_decode_to_finite_values() {
 
 #[test]
 fn a_session_says_it_rice_codes_and_packed_sessions_keep_their_bytes() {
-    let packed = SessionConfig::new(&MapConfig::default(), 64, SummaryCodec { rice: false, ..RICE }, 5);
+    let packed = SessionConfig::new(
+        &MapConfig::default(),
+        64,
+        SummaryCodec {
+            rice: false,
+            ..RICE
+        },
+        5,
+    );
     let rice = SessionConfig::new(&MapConfig::default(), 64, RICE, 5);
     assert_ne!(packed.id(), rice.id(), "codings never merge");
     let header = FrameHeader {
@@ -170,5 +189,58 @@ fn a_session_says_it_rice_codes_and_packed_sessions_keep_their_bytes() {
         assert_eq!(n, na + 5);
         assert_eq!(parse_body(&b[..n]).unwrap().1, Message::Session(f));
         assert_ne!(f.id(), rice.id());
+    }
+}
+
+#[test]
+fn a_rice_head_is_a_few_bits_per_field_and_round_trips_stamps() {
+    let mut out = [0u8; 32];
+    let mut base = DeltaBase::default();
+    // Neighbouring keys, same residency, one point: 1 + 3 + 1 + 3 (final) + 3 bits → 2 bytes.
+    encode_rice_head(
+        &mut base,
+        (VoxelKey::new(0, 1, 0), 0, true),
+        1,
+        None,
+        &mut out,
+    )
+    .unwrap();
+    let n = encode_rice_head(
+        &mut base,
+        (VoxelKey::new(1, 1, 0), 0, true),
+        1,
+        None,
+        &mut out,
+    )
+    .unwrap();
+    assert_eq!(n, 2);
+    // A stamped head: count 0, the tick, the weight's bits; then its codes.
+    let codec = SummaryCodec { lead: 0, ..RICE };
+    let s = sample(5, 2.5);
+    let mut base = DeltaBase::default();
+    let h = encode_rice_head(
+        &mut base,
+        (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false),
+        0,
+        Some((123_456, 2.5)),
+        &mut out,
+    )
+    .unwrap();
+    let mut frame = [0u8; 256];
+    frame[..h].copy_from_slice(&out[..h]);
+    let c = encode_codes_as(codec, &s, stamped_class(2.5).unwrap(), &mut frame[h..]).unwrap();
+    let (mut base, mut at) = (DeltaBase::default(), 0);
+    let got = decode_summary::<64>(codec, &mut base, &frame[..h + c], &mut at).unwrap();
+    assert_eq!(at, h + c);
+    assert_eq!(got.time, Some(123_456));
+    assert_eq!(got.obs.count, 2.5);
+    assert_eq!(
+        (got.key, got.residency, got.is_final),
+        (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false)
+    );
+    // Cut anywhere: refused.
+    for cut in 0..h + c {
+        let (mut base, mut at) = (DeltaBase::default(), 0);
+        assert!(decode_summary::<64>(codec, &mut base, &frame[..cut], &mut at).is_err());
     }
 }

@@ -59,22 +59,23 @@ pub fn table(
     }
     // Rice-coded means: the step policy's offsets (lead, rest) and shrink per doubling, in eighths.
     let policies = std::env::var("LATENTBKI_RICE_STUDY").ok();
-    let grid: Vec<(u8, u8, u8, u8)> = match &policies {
+    let grid: Vec<(u8, u8, u8, u8, i8)> = match &policies {
         Some(s) => s
             .split(';')
             .filter_map(|p| {
-                let v: Vec<u8> = p.split(',').filter_map(|x| x.trim().parse().ok()).collect();
-                (v.len() == 4).then(|| (v[0], v[1], v[2], v[3]))
+                let v: Vec<i32> = p.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+                (v.len() == 5).then(|| (v[0] as u8, v[1] as u8, v[2] as u8, v[3] as u8, v[4] as i8))
             })
             .collect(),
-        None => vec![(48, 48, 4, 0), (48, 52, 4, 0), (48, 52, 4, 4)],
+        None => vec![(48, 48, 4, 0, 0), (48, 52, 4, 0, 8)],
     };
-    for (lead_eighths, rest_eighths, lead_per_doubling, rest_per_doubling) in grid {
+    for (lead_eighths, rest_eighths, lead_per_doubling, rest_per_doubling, rest_single) in grid {
         let policy = Policy {
             lead_eighths,
             rest_eighths,
             lead_per_doubling,
             rest_per_doubling,
+            rest_single,
         };
         rows.push(row(
             config,
@@ -97,12 +98,13 @@ pub fn table(
     for r in rows {
         if let Some(p) = r.policy {
             out += &format!(
-                "  Rice, lead {:2}, steps ‖m‖/2^({}/8) − {}/8, ‖m‖/2^({}/8) − {}/8 per doubling of n: {:6.2} B; robot {:6.2} % {:.4}; reference {:6.2} % {:.4}\n",
+                "  Rice, lead {:2}, steps ‖m‖/2^({}/8) − {}/8, ‖m‖/2^({}/8) − {}/8 per doubling of n (+{}/8 at n = 1): {:6.2} B; robot {:6.2} % {:.4}; reference {:6.2} % {:.4}\n",
                 r.codec.lead,
                 p.lead_eighths,
                 p.lead_per_doubling,
                 p.rest_eighths,
                 p.rest_per_doubling,
+                p.rest_single,
                 r.code_bytes / n,
                 100.0 * r.vs_robot.0,
                 r.vs_robot.1,
