@@ -363,7 +363,7 @@ pub(super) fn bands_len(bytes: &[u8], lead: usize, rest: usize) -> Result<usize,
     Ok(heads + r.bit.div_ceil(8))
 }
 
-/// The most bytes [`encode_bands`] writes for D components: `D` × 6 bits and the two k, plus the step
+/// The most bytes a Rice-coded mean takes for D components: `D` × 6 bits and the two k, plus the step
 /// bytes. (Packed codes of 6 bits per component; a sender coarsens its steps to stay within it.)
 pub const fn cap(dim: usize, lead: usize) -> usize {
     (6 * dim + 2 * K_BITS as usize).div_ceil(8) + if lead > 0 { 2 } else { 1 }
