@@ -268,7 +268,7 @@ pub(super) fn encode_bands(
             if band.is_empty() || bases[i] == 0 || zero(band) {
                 continue;
             }
-            codes[i] = finest[i].saturating_add(8 * extra);
+            codes[i] = finest[i].saturating_add(8u8.saturating_mul(extra));
             let (k, b) = best_k(band, step_value(codes[i]));
             ks[i] = k;
             bits += b;
