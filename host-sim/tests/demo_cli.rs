@@ -63,6 +63,11 @@ fn demo_with_back_channel_loses_nothing_within_its_byte_budget() {
         "base station vs robot map, argmax agreement: ",
     ));
     assert!(agreement >= 99.9, "{agreement} %\n{stdout}");
+    // The figures come from the Rice-coded summaries (packed codes stay at RMS 0.043 on this map).
+    assert!(line(&stdout, "summary codec: ").starts_with("Rice-coded"));
+    let reference = line(&stdout, "base station vs f32 reference of all points: ");
+    let rms = number(reference.split_once("RMS ‖Δμ‖/‖μ‖ ").unwrap().1);
+    assert!(rms <= 0.035, "RMS {rms}\n{stdout}");
 }
 
 #[test]

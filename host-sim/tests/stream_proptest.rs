@@ -41,6 +41,7 @@ fn codec() -> impl Strategy<Value = SummaryCodec> {
             mean_bits_growth,
             lead,
             lead_bits,
+            rice: false,
         },
     )
 }

@@ -91,6 +91,7 @@ fn whole_run_with_exact_codes_equals_the_reference_map() {
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        rice: false,
     };
     let r = run(codec, &[path(0.5, 11.0, 3.0, 0.0)], 64 * 1024);
     let s = r.base.stats();
@@ -163,6 +164,7 @@ fn two_robots_merge_into_the_all_points_map() {
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        rice: false,
     };
     let r = run(
         codec,
@@ -217,6 +219,7 @@ fn codec_trade_off_table() {
             mean_bits_growth: 0,
             lead: 0,
             lead_bits: 0,
+            rice: false,
         };
         // What a base station gathers from the summaries at this codec.
         let mut received =

@@ -148,6 +148,7 @@ fn a_refused_setup_sends_nothing() {
             mean_bits_growth: 0,
             lead: 0,
             lead_bits: 0,
+            ..SummaryCodec::DEFAULT
         },
         ..setup()
     };

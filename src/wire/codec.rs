@@ -36,6 +36,14 @@ pub struct SummaryCodec {
     pub lead: u8,
     /// Bits added per component of the lead band, 0..=6 (8 in all at most).
     pub lead_bits: u8,
+    /// The mean bands are Rice-coded ([`super::rice`]) instead of packed: the steps are the sender's
+    /// choice and `mean_bits`, `mean_bits_growth` and `lead_bits` are not used (`lead` is). Not a postcard
+    /// field: it travels as the session message's 1-byte extension ([`super::encode_body`]), so sessions
+    /// with packed codes send the bytes they always did. (Only with the `rice-codes` feature: a firmware
+    /// built without it links none of this.)
+    #[cfg(feature = "rice-codes")]
+    #[serde(skip)]
+    pub rice: bool,
 }
 
 impl Default for SummaryCodec {
@@ -53,7 +61,18 @@ impl SummaryCodec {
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        #[cfg(feature = "rice-codes")]
+        rice: false,
     };
+
+    /// Whether the mean bands are Rice-coded ([`Self::rice`]); always false without `rice-codes`.
+    #[inline]
+    pub const fn is_rice(self) -> bool {
+        #[cfg(feature = "rice-codes")]
+        return self.rice;
+        #[cfg(not(feature = "rice-codes"))]
+        return false;
+    }
 
     /// Whether this codec can encode D-dimensional voxels.
     pub fn validate(self, dim: usize) -> Result<(), WireError> {
@@ -131,8 +150,11 @@ impl SummaryCodec {
     }
 
     /// Bytes of the mean (lead band, then the other components' scale and codes) of a D-dimensional
-    /// summary of `count` points.
+    /// summary of `count` points (Rice-coded: the most they take, see [`Self::codes_len`]).
     pub const fn mean_len_for(self, dim: usize, count: u32) -> usize {
+        if self.is_rice() {
+            return super::rice::cap(dim, self.lead as usize);
+        }
         let rest = dim.saturating_sub(self.lead as usize);
         self.lead_len_for(count) + band_len(rest, self.rest_bits_for(count))
     }
@@ -147,6 +169,26 @@ impl SummaryCodec {
             mean
         } else {
             mean + 1 + (self.psi_blocks as usize).div_ceil(2)
+        }
+    }
+
+    /// Bytes of the quantized part at the start of `codes`, a summary of `count` points: packed,
+    /// [`Self::code_len_for`]; Rice-coded, what its bit stream takes (read from it), plus the scatter.
+    pub fn codes_len(self, dim: usize, count: u32, codes: &[u8]) -> Result<usize, WireError> {
+        if !self.is_rice() {
+            return Ok(self.code_len_for(dim, count));
+        }
+        let lead = usize::from(self.lead);
+        let mean = super::rice::bands_len(codes, lead, dim.saturating_sub(lead))?;
+        Ok(mean + self.scatter_len(count))
+    }
+
+    /// Bytes of the scatter of a summary of `count` points (none for one point).
+    pub const fn scatter_len(self, count: u32) -> usize {
+        if count < 2 {
+            0
+        } else {
+            1 + (self.psi_blocks as usize).div_ceil(2)
         }
     }
 
@@ -304,12 +346,15 @@ pub fn encode_codes_as<const D: usize>(
     codec.validate(D)?;
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
     let len = codec.code_len_for(D, count);
+    let lead = usize::from(codec.lead);
+    if codec.is_rice() {
+        return encode_rice(codec, super::rice::Policy::DEFAULT, stats, count, out);
+    }
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
     // μ: the lead band (if any), then the other components, each after its scale byte.
     let mut t = stats.mean;
     let mut tmp = [0.0f32; D];
-    let lead = usize::from(codec.lead);
     let mut at = 0;
     for (band, bits) in [
         (0..lead, codec.lead_bits_for(count)),
@@ -326,12 +371,59 @@ pub fn encode_codes_as<const D: usize>(
         encode_band(v, scratch, bits, o);
         at += n;
     }
+    encode_scatter::<D>(
+        blocks,
+        &stats.scatter,
+        out.get_mut(at..).unwrap_or_default(),
+    );
+    Ok(len)
+}
+
+/// [`encode_codes_as`] of a Rice session, its steps chosen by `policy` (the study compares policies).
+pub fn encode_rice<const D: usize>(
+    codec: SummaryCodec,
+    policy: super::rice::Policy,
+    stats: &ObsStats<D>,
+    count: u32,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
+    codec.validate(D)?;
+    let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
+    let lead = usize::from(codec.lead);
+    let mut t = stats.mean;
+    let mut tmp = [0.0f32; D];
+    let norm = libm::sqrtf(t.iter().map(|v| v * v).sum::<f32>());
+    let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
+    let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
+    rotate(lead_band, lead_tmp);
+    rotate(rest_band, rest_tmp);
+    let cap = super::rice::cap(D, lead);
+    let mean = super::rice::encode_bands(
+        policy,
+        [lead_band, rest_band],
+        (norm, count),
+        cap,
+        out,
+        |c| log_value(c, SCALE_OFFSET),
+        |x| log_code_up(x, SCALE_OFFSET),
+    )?;
+    let scatter = codec.scatter_len(count);
+    let s = out
+        .get_mut(mean..mean + scatter)
+        .ok_or(WireError::BufferFull)?;
+    s.fill(0);
+    encode_scatter::<D>(blocks, &stats.scatter, s);
+    Ok(mean + scatter)
+}
+
+/// Write the scatter (largest entry, block means) into `out` (zeroed; empty for a one-point summary).
+fn encode_scatter<const D: usize>(blocks: NonZeroUsize, scatter: &[f32; D], out: &mut [u8]) {
     // A single point has no scatter: nothing is sent for it.
-    let Some([max_byte, block_bytes @ ..]) = out.get_mut(at..) else {
-        return Ok(len);
+    let [max_byte, block_bytes @ ..] = out else {
+        return;
     };
     // S: largest entry (rounded up) and block means relative to it.
-    let psi_max = max_or_zero(&stats.scatter);
+    let psi_max = max_or_zero(scatter);
     if psi_max > 0.0 && psi_max.is_finite() {
         let max_code = log_code_up(psi_max, PSI_OFFSET);
         *max_byte = max_code;
@@ -340,7 +432,7 @@ pub fn encode_codes_as<const D: usize>(
         for b in 0..blocks.get() {
             let r = block_range(D, blocks, b);
             let n = r.len().max(1) as f32;
-            let block = stats.scatter.get(r).unwrap_or_default();
+            let block = scatter.get(r).unwrap_or_default();
             let mean = block
                 .iter()
                 .map(|&p| if p > 0.0 { p } else { 0.0 })
@@ -360,7 +452,6 @@ pub fn encode_codes_as<const D: usize>(
             }
         }
     }
-    Ok(len)
 }
 
 /// Decode the quantized part written by [`encode_codes`] into statistics of `count` points.
@@ -383,16 +474,28 @@ pub fn decode_codes_as<const D: usize>(
 ) -> Result<ObsStats<D>, WireError> {
     codec.validate(D)?;
     let bytes = bytes
-        .get(..codec.code_len_for(D, n))
+        .get(..codec.codes_len(D, n, bytes)?)
         .ok_or(WireError::Truncated)?;
     let mut t = [0.0f32; D];
     let mut tmp = [0.0f32; D];
     let lead = usize::from(codec.lead);
     let mut at = 0;
+    if codec.is_rice() {
+        let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
+        at = super::rice::decode_bands(bytes, [&mut *lead_band, &mut *rest_band], |c| {
+            log_value(c, SCALE_OFFSET)
+        })?;
+        let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
+        rotate(lead_band, lead_tmp);
+        rotate(rest_band, rest_tmp);
+    }
     for (band, bits) in [
         (0..lead, codec.lead_bits_for(n)),
         (lead..D, codec.rest_bits_for(n)),
-    ] {
+    ]
+    .into_iter()
+    .filter(|_| !codec.is_rice())
+    {
         let len = band_len(band.len(), bits);
         let (Some(v), Some(scratch), Some(b)) = (
             t.get_mut(band.clone()),
@@ -431,6 +534,19 @@ pub fn decode_codes_as<const D: usize>(
 /// and its point count: per band √(its length) × half a quantization step, added in quadrature.
 pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u32) -> f32 {
     let lead = usize::from(codec.lead);
+    if codec.is_rice() {
+        // Rounding to the nearest multiple of the step: half a step per component (a sender coarsens
+        // its steps rather than clamp a value).
+        let mut sq = 0.0;
+        for (code, len) in codes
+            .iter()
+            .zip([lead, dim - lead].into_iter().filter(|&l| l > 0))
+        {
+            let e = log_value(*code, SCALE_OFFSET) / 2.0;
+            sq += len as f32 * e * e;
+        }
+        return libm::sqrtf(sq);
+    }
     let band = |scale_code: Option<&u8>, len: usize, bits: u32| {
         let scale = log_value(scale_code.copied().unwrap_or(0), SCALE_OFFSET);
         let e = scale / (1u32 << bits) as f32;

@@ -135,6 +135,10 @@ impl SessionConfig {
     /// session forgets.
     pub fn id(&self) -> u32 {
         let mut buf = [0u8; 64];
+        #[cfg(feature = "rice-codes")]
+        if self.codec.rice {
+            return self.rice_id(&mut buf);
+        }
         match postcard::to_slice(self, &mut buf) {
             #[cfg(feature = "forgetting")]
             Ok(bytes) if self.half_life > 0.0 => {
@@ -146,6 +150,25 @@ impl SessionConfig {
             Ok(bytes) => CRC32.checksum(bytes),
             Err(_) => 0, // cannot happen: the encoding is at most 44 bytes
         }
+    }
+}
+
+#[cfg(feature = "rice-codes")]
+impl SessionConfig {
+    /// [`Self::id`] of a Rice session: CRC-32 of its postcard encoding, the half-life extension when it
+    /// forgets, then the Rice extension byte — the bytes of its session message.
+    fn rice_id(&self, buf: &mut [u8; 64]) -> u32 {
+        let Ok(bytes) = postcard::to_slice(self, buf) else {
+            return 0; // cannot happen: the encoding is at most 44 bytes
+        };
+        let mut digest = CRC32.digest();
+        digest.update(bytes);
+        #[cfg(feature = "forgetting")]
+        if self.half_life > 0.0 {
+            digest.update(&self.half_life.to_le_bytes());
+        }
+        digest.update(&[RICE_EXTENSION]);
+        digest.finalize()
     }
 }
 
@@ -255,17 +278,29 @@ pub fn encode_body(
     let m = postcard::to_slice(message, rest)
         .map_err(|_| WireError::BufferFull)?
         .len();
+    #[allow(unused_mut)] // extended only with forgetting or Rice codes
+    let mut end = h + m;
     #[cfg(feature = "forgetting")]
     if let Message::Session(c) = message {
         if c.half_life > 0.0 {
-            out.get_mut(h + m..h + m + 4)
+            out.get_mut(end..end + 4)
                 .ok_or(WireError::BufferFull)?
                 .copy_from_slice(&c.half_life.to_le_bytes());
-            return Ok(h + m + 4);
+            end += 4;
         }
     }
-    Ok(h + m)
+    #[cfg(feature = "rice-codes")]
+    if let Message::Session(c) = message {
+        if c.codec.rice {
+            *out.get_mut(end).ok_or(WireError::BufferFull)? = RICE_EXTENSION;
+            end += 1;
+        }
+    }
+    Ok(end)
 }
+
+/// The byte that ends a session message whose codec Rice-codes its means ([`SummaryCodec::rice`]).
+pub const RICE_EXTENSION: u8 = 1;
 
 /// Parse a frame body (CRC already checked): version first, then header and message, nothing after.
 pub fn parse_body(body: &[u8]) -> Result<(FrameHeader, Message<'_>), WireError> {
@@ -279,8 +314,19 @@ pub fn parse_body(body: &[u8]) -> Result<(FrameHeader, Message<'_>), WireError> 
         _ => WireError::Malformed,
     };
     let (header, rest) = postcard::take_from_bytes::<FrameHeader>(body).map_err(map)?;
-    #[allow(unused_mut)] // the half-life extension is read only with forgetting
-    let (mut message, rest) = postcard::take_from_bytes::<Message<'_>>(rest).map_err(map)?;
+    #[allow(unused_mut)] // the extensions are read only with forgetting or Rice codes
+    let (mut message, mut rest) = postcard::take_from_bytes::<Message<'_>>(rest).map_err(map)?;
+    // The Rice extension: one byte, last, only after a session message (packed codes send none).
+    #[cfg(feature = "rice-codes")]
+    if let (Message::Session(c), [ext @ .., last]) = (&mut message, rest) {
+        if ext.is_empty() || ext.len() == 4 {
+            if *last != RICE_EXTENSION {
+                return Err(WireError::Malformed);
+            }
+            c.codec.rice = true;
+            rest = ext;
+        }
+    }
     match (&mut message, rest) {
         (_, []) => {}
         // The half-life extension: only after a session message, and only > 0 (0 is sent as no bytes).

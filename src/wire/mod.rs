@@ -19,19 +19,20 @@
 
 pub mod codec;
 pub mod messages;
+pub mod rice;
 pub mod summary;
 
 pub use codec::{
-    decode_codes, decode_codes_as, encode_codes, encode_codes_as, mean_error_bound, stamped_class,
-    wire_count, SummaryCodec, MAX_COUNT,
+    decode_codes, decode_codes_as, encode_codes, encode_codes_as, encode_rice, mean_error_bound,
+    stamped_class, wire_count, SummaryCodec, MAX_COUNT,
 };
 pub use messages::{
     encode_body, feature_space_id, parse_body, FrameHeader, LinkStats, Message, SessionConfig,
     VoxelBatch, NO_FEATURE_SPACE,
 };
 pub use summary::{
-    decode_summary, encode_stamped_head, encode_summary, encode_summary_head, Ceiling, DeltaBase,
-    Summary, SummaryIter,
+    decode_summary, encode_rice_head, encode_stamped_head, encode_summary, encode_summary_head,
+    Ceiling, DeltaBase, Summary, SummaryIter,
 };
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.
@@ -80,5 +81,7 @@ impl core::fmt::Display for WireError {
 
 impl core::error::Error for WireError {}
 
+#[cfg(all(test, feature = "rice-codes"))]
+mod rice_tests;
 #[cfg(test)]
 mod tests;

@@ -85,6 +85,17 @@ fn take_varint(bytes: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, Wi
     Err(WireError::Malformed)
 }
 
+/// The quantized part of a summary of `count` points at `*at` (its length read from it when Rice-coded).
+fn take_codes<'a, const D: usize>(
+    codec: SummaryCodec,
+    count: u32,
+    bytes: &'a [u8],
+    at: &mut usize,
+) -> Result<&'a [u8], WireError> {
+    let len = codec.codes_len(D, count, bytes.get(*at..).unwrap_or_default())?;
+    take(bytes, at, len)
+}
+
 pub(super) const fn zigzag(v: i32) -> u32 {
     ((v << 1) ^ (v >> 31)) as u32
 }
@@ -142,6 +153,72 @@ pub fn encode_stamped_head(
     Ok(at)
 }
 
+/// Write a summary's head in a Rice session ([`SummaryCodec::rice`]): the fields of
+/// [`encode_summary_head`] (or, with `stamp` = (tick, weight), of [`encode_stamped_head`]: count 0, the
+/// tick, the weight's 32 bits) as Exp-Golomb codes in one bit stream, padded with 0 bits to a whole byte.
+/// Returns the bytes written and advances `base`.
+pub fn encode_rice_head(
+    base: &mut DeltaBase,
+    (key, residency, is_final): (VoxelKey, u32, bool),
+    count: u32,
+    stamp: Option<(u32, f32)>,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
+    let mut w = super::rice::BitWriter { out, bit: 0 };
+    w.out.fill(0);
+    for (k, b) in key.as_array().iter().zip(base.key.as_array()) {
+        w.exp_golomb(u64::from(zigzag(k.wrapping_sub(b))));
+    }
+    let dres = u64::from(zigzag(residency.wrapping_sub(base.residency) as i32));
+    w.exp_golomb(dres << 1 | u64::from(is_final));
+    match stamp {
+        None => w.exp_golomb(u64::from(count)),
+        Some((time, n)) => {
+            w.exp_golomb(0);
+            w.exp_golomb(u64::from(time));
+            w.put(n.to_bits(), 32);
+        }
+    }
+    let len = w.bytes()?;
+    *base = DeltaBase { key, residency };
+    Ok(len)
+}
+
+/// A summary head's fields as they are read: varints, or (Rice session) Exp-Golomb codes in a bit stream.
+enum Fields<'a> {
+    Varints,
+    Bits(super::rice::BitReader<'a>),
+}
+
+impl Fields<'_> {
+    /// An unsigned field of at most `max_bytes` varint bytes.
+    fn int(&mut self, bytes: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, WireError> {
+        match self {
+            Self::Varints => take_varint(bytes, at, max_bytes),
+            Self::Bits(r) => r.exp_golomb(),
+        }
+    }
+
+    /// Four raw bytes (an f32 little-endian).
+    fn raw4(&mut self, bytes: &[u8], at: &mut usize) -> Result<[u8; 4], WireError> {
+        match self {
+            Self::Varints => {
+                let n = take(bytes, at, 4)?;
+                Ok([n[0], n[1], n[2], n[3]])
+            }
+            Self::Bits(r) => Ok(r.get(32)?.to_le_bytes()),
+        }
+    }
+
+    /// Where the head ends (a bit stream's last byte whole).
+    fn end(&self, at: usize) -> usize {
+        match self {
+            Self::Varints => at,
+            Self::Bits(r) => at + r.bytes(),
+        }
+    }
+}
+
 fn put_key_residency(
     base: &mut DeltaBase,
     key: VoxelKey,
@@ -166,39 +243,56 @@ pub fn decode_summary<const D: usize>(
     bytes: &[u8],
     at: &mut usize,
 ) -> Result<Summary<D>, WireError> {
+    let head_at = *at;
+    let mut f = if codec.is_rice() {
+        Fields::Bits(super::rice::BitReader {
+            bytes: bytes.get(head_at..).unwrap_or_default(),
+            bit: 0,
+        })
+    } else {
+        Fields::Varints
+    };
     let mut k = [0i32; 3];
     for (i, b) in k.iter_mut().zip(base.key.as_array()) {
-        let z = u32::try_from(take_varint(bytes, at, 5)?).map_err(|_| WireError::Malformed)?;
+        let z = u32::try_from(f.int(bytes, at, 5)?).map_err(|_| WireError::Malformed)?;
         *i = b.wrapping_add(unzigzag(z));
     }
     let key = VoxelKey::new(k[0], k[1], k[2]);
     if !key.in_range() {
         return Err(WireError::BadKey);
     }
-    let rf = take_varint(bytes, at, 5)?;
+    let rf = f.int(bytes, at, 5)?;
     let z = u32::try_from(rf >> 1).map_err(|_| WireError::Malformed)?;
     let residency = base.residency.wrapping_add(unzigzag(z) as u32);
     let is_final = rf & 1 == 1;
-    let count = take_varint(bytes, at, 4)?;
-    let (count, obs, codes, time) = if count == 0 {
+    let count = f.int(bytes, at, 4)?;
+    let stamp = if count == 0 {
+        let time = u32::try_from(f.int(bytes, at, 5)?).map_err(|_| WireError::Malformed)?;
+        Some((time, f32::from_le_bytes(f.raw4(bytes, at)?)))
+    } else {
+        None
+    };
+    *at = f.end(*at);
+    let (count, obs, codes, time) = if let Some((time, n)) = stamp {
         // Stamped (forgetting): the tick, the weight n, codes sized for its class.
-        let time = u32::try_from(take_varint(bytes, at, 5)?).map_err(|_| WireError::Malformed)?;
-        let n = take(bytes, at, 4)?;
-        let n = f32::from_le_bytes([n[0], n[1], n[2], n[3]]);
         let class = stamped_class(n).ok_or(WireError::BadCount)?;
-        let codes = take(bytes, at, codec.code_len_for(D, class))?;
+        let codes = take_codes::<D>(codec, class, bytes, at)?;
         let obs = decode_codes_as::<D>(codec, class, n, codes)?;
         (class, obs, codes, Some(time))
     } else {
         if count > u64::from(MAX_COUNT) {
             return Err(WireError::BadCount);
         }
-        let codes = take(bytes, at, codec.code_len_for(D, count as u32))?;
+        let codes = take_codes::<D>(codec, count as u32, bytes, at)?;
         let obs = decode_codes::<D>(codec, count as f32, codes)?;
         (count as u32, obs, codes, None)
     };
-    let psi_at = codec.mean_len_for(D, count);
-    let rest_at = codec.lead_len_for(count);
+    let psi_at = codes.len() - codec.scatter_len(count).min(codes.len());
+    let rest_at = match (codec.is_rice(), codec.lead) {
+        (_, 0) => 0,
+        (true, _) => 1,
+        (false, _) => codec.lead_len_for(count),
+    };
     let at_ceiling = Ceiling {
         mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
         psi: codes.get(psi_at) == Some(&u8::MAX),

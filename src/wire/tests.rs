@@ -171,6 +171,7 @@ fn block_means_of_the_scatter_merge_additively() {
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        ..SummaryCodec::DEFAULT
     };
     let s = sample::<64>(3);
     let mut codes = [0u8; 128];
@@ -237,6 +238,7 @@ fn a_lead_band_codes_the_leading_components_finer_and_keeps_the_rest_as_without_
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        ..SummaryCodec::DEFAULT
     };
     let lead = SummaryCodec {
         lead: 8,

@@ -39,6 +39,7 @@ fuzz_target!(|data: &[u8]| {
         mean_bits_growth: 2,
         lead: 2,
         lead_bits: 3,
+        rice: ctl & 0x80 != 0,
     };
     let config = SessionConfig::new(&MapConfig::default(), D, codec, 0);
     let settings = EncoderSettings::new(1 + u16::from(ctl % 3), 7);

@@ -28,6 +28,13 @@ fuzz_target!(|data: &[u8]| {
                                 mean_bits_growth: 0,
                                 lead: 0,
                                 lead_bits: 0,
+                                rice: false,
+                            },
+                            // Rice-coded heads and means, one band.
+                            SummaryCodec {
+                                psi_blocks: 3,
+                                rice: true,
+                                ..SummaryCodec::DEFAULT
                             },
                             // The demo's: a lead band.
                             SummaryCodec {
@@ -36,6 +43,16 @@ fuzz_target!(|data: &[u8]| {
                                 mean_bits_growth: 3,
                                 lead: 8,
                                 lead_bits: 3,
+                                rice: false,
+                            },
+                            // The demo's since Rice codes.
+                            SummaryCodec {
+                                mean_bits: 3,
+                                psi_blocks: 2,
+                                mean_bits_growth: 3,
+                                lead: 8,
+                                lead_bits: 3,
+                                rice: true,
                             },
                         ] {
                             for s in batch.iter::<64>(codec) {

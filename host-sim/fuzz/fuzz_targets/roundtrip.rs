@@ -35,6 +35,8 @@ fuzz_target!(|data: &[u8]| {
         // A lead band of 0..D−1 components (0 = none) with 0..=6 more bits.
         lead: data[1] / 16 % D as u8,
         lead_bits: data[0] / 28 % 7,
+        // Rice-coded means and heads (a session extension byte).
+        rice: (data[0] ^ data[1]) & 1 == 1,
     };
     let forgetting = (data[1] & 0x80 != 0)
         .then(|| latentbki::forget::Forgetting::new(1.0 + f32::from(data[0])))

@@ -15,12 +15,14 @@ use crate::ObsMap;
 use latentbki::key::VoxelKey;
 use latentbki::obs::ObsStats;
 use latentbki::stats::VoxelStats;
-use latentbki::wire::{decode_codes, encode_codes, wire_count, SummaryCodec};
+use latentbki::wire::rice::Policy;
+use latentbki::wire::{decode_codes, encode_codes, encode_rice, wire_count, SummaryCodec};
 use std::collections::HashMap;
 
 /// One candidate's measured effect.
 struct Row {
     codec: SummaryCodec,
+    policy: Option<Policy>,
     code_bytes: f64,
     entropy_bytes: f64,
     vs_robot: (f64, f64),
@@ -37,28 +39,47 @@ pub fn table(
 ) -> String {
     let mut rows = Vec::new();
     // (mean bits, growth, lead, lead bits): protocol 3's demo codec and its neighbours, then lead bands.
-    for (mean_bits, growth, lead, lead_bits) in [
-        (3, 3, 0, 0),
-        (4, 3, 0, 0),
-        (5, 3, 0, 0),
-        (3, 3, 8, 2),
-        (3, 3, 8, 3),
-        (3, 3, 8, 4),
-        (2, 3, 8, 4),
-        (4, 3, 8, 3),
-        (3, 3, 4, 3),
-        (3, 3, 16, 3),
-    ] {
+    for (mean_bits, growth, lead, lead_bits) in [(3, 3, 8, 3), (4, 3, 8, 3)] {
         let codec = SummaryCodec {
             mean_bits,
             psi_blocks: super::CODEC.psi_blocks,
             mean_bits_growth: growth,
             lead,
             lead_bits,
+            rice: false,
         };
         rows.push(row(
             config,
-            codec,
+            (codec, None),
+            robot,
+            robot_posteriors,
+            reference,
+            decoder,
+        ));
+    }
+    // Rice-coded means: the step policy's offsets (lead, rest) and shrink per doubling, in eighths.
+    let policies = std::env::var("LATENTBKI_RICE_STUDY").ok();
+    let grid: Vec<(u8, u8, u8, u8, i8)> = match &policies {
+        Some(s) => s
+            .split(';')
+            .filter_map(|p| {
+                let v: Vec<i32> = p.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+                (v.len() == 5).then(|| (v[0] as u8, v[1] as u8, v[2] as u8, v[3] as u8, v[4] as i8))
+            })
+            .collect(),
+        None => vec![(48, 48, 4, 0, 0), (48, 52, 4, 0, 8)],
+    };
+    for (lead_eighths, rest_eighths, lead_per_doubling, rest_per_doubling, rest_single) in grid {
+        let policy = Policy {
+            lead_eighths,
+            rest_eighths,
+            lead_per_doubling,
+            rest_per_doubling,
+            rest_single,
+        };
+        rows.push(row(
+            config,
+            (super::CODEC, Some(policy)),
             robot,
             robot_posteriors,
             reference,
@@ -75,6 +96,23 @@ pub fn table(
     );
     out += &spectrum(robot);
     for r in rows {
+        if let Some(p) = r.policy {
+            out += &format!(
+                "  Rice, lead {:2}, steps ‖m‖/2^({}/8) − {}/8, ‖m‖/2^({}/8) − {}/8 per doubling of n (+{}/8 at n = 1): {:6.2} B; robot {:6.2} % {:.4}; reference {:6.2} % {:.4}\n",
+                r.codec.lead,
+                p.lead_eighths,
+                p.lead_per_doubling,
+                p.rest_eighths,
+                p.rest_per_doubling,
+                p.rest_single,
+                r.code_bytes / n,
+                100.0 * r.vs_robot.0,
+                r.vs_robot.1,
+                100.0 * r.vs_reference.0,
+                r.vs_reference.1,
+            );
+            continue;
+        }
         out += &format!(
             "  mean bits {} + growth {}, lead {:2} at +{}: {:6.2} B, entropy {:6.2} B; robot {:6.2} % {:.4}; reference {:6.2} % {:.4}\n",
             r.codec.mean_bits,
@@ -94,7 +132,7 @@ pub fn table(
 
 fn row(
     config: latentbki::MapConfig,
-    codec: SummaryCodec,
+    (codec, policy): (SummaryCodec, Option<Policy>),
     robot: &[(VoxelKey, ObsStats<D>)],
     robot_posteriors: &[(VoxelKey, VoxelStats<D>)],
     reference: &[(VoxelKey, VoxelStats<D>)],
@@ -106,9 +144,18 @@ fn row(
     // Histogram of mean codes per band and bit width.
     let mut hist: HashMap<(bool, u32), Vec<u64>> = HashMap::new();
     for (k, o) in robot {
-        let len = encode_codes::<D>(codec, o, &mut buf).expect("a valid codec");
-        code_bytes += len;
         let count = wire_count(o.count).unwrap_or(1);
+        let len = match policy {
+            Some(p) => encode_rice::<D>(codec, p, o, count, &mut buf),
+            None => encode_codes::<D>(codec, o, &mut buf),
+        }
+        .expect("a valid codec");
+        code_bytes += len;
+        if policy.is_some() {
+            let dec = decode_codes::<D>(codec, o.count, &buf[..len]).expect("just encoded");
+            map.merge_observations(*k, &dec);
+            continue;
+        }
         // Mean codes: the lead band after its scale byte, the others after theirs.
         let lead = usize::from(codec.lead);
         let rest_at = 8 * (codec.lead_len_for(count) + 1);
@@ -151,6 +198,7 @@ fn row(
     let vs_reference = against(&ours, reference, decoder);
     Row {
         codec,
+        policy,
         code_bytes: code_bytes as f64,
         entropy_bytes,
         vs_robot: (vs_robot.0, vs_robot.1),

@@ -441,23 +441,59 @@ impl SessionTable for Table<'_> {
 }
 
 /// A session configuration as the store keeps it: its postcard encoding, then the half-life (f32
-/// little-endian) when the session forgets — the same bytes as the session message on the wire.
+/// little-endian) when the session forgets, then the Rice byte when its summaries are Rice-coded — the
+/// same bytes as the session message on the wire.
 fn config_to_bytes(c: &SessionConfig) -> Vec<u8> {
     let mut out = postcard::to_stdvec(c).expect("a session config serializes");
     if c.half_life > 0.0 {
         out.extend_from_slice(&c.half_life.to_le_bytes());
+    }
+    if c.codec.rice {
+        out.push(latentbki::wire::messages::RICE_EXTENSION);
     }
     out
 }
 
 /// [`config_to_bytes`] read back.
 fn config_from_bytes(bytes: &[u8]) -> Result<SessionConfig, String> {
-    let (mut c, rest): (SessionConfig, _) =
+    let (mut c, mut rest): (SessionConfig, _) =
         postcard::take_from_bytes(bytes).map_err(|e| e.to_string())?;
+    if let [ext @ .., latentbki::wire::messages::RICE_EXTENSION] = rest {
+        if ext.is_empty() || ext.len() == 4 {
+            c.codec.rice = true;
+            rest = ext;
+        }
+    }
     match rest {
         [] => {}
         &[a, b, c2, d] => c.half_life = f32::from_le_bytes([a, b, c2, d]),
         _ => return Err(format!("{} trailing bytes", rest.len())),
     }
     Ok(c)
+}
+
+#[cfg(test)]
+mod config_bytes_tests {
+    use super::{config_from_bytes, config_to_bytes};
+    use latentbki::wire::{SessionConfig, SummaryCodec};
+    use latentbki::MapConfig;
+
+    /// A stored configuration reads back as it was: packed or Rice-coded, forgetting or not (the fuzz
+    /// target `base_station_db` found the Rice flag lost on a reopen).
+    #[test]
+    fn stored_configurations_read_back_with_their_coding_and_half_life() {
+        for rice in [false, true] {
+            for half_life in [None, latentbki::forget::Forgetting::new(50.0)] {
+                let codec = SummaryCodec {
+                    rice,
+                    ..SummaryCodec::DEFAULT
+                };
+                let c = SessionConfig::new(&MapConfig::default(), 16, codec, 3)
+                    .with_forgetting(half_life);
+                let back = config_from_bytes(&config_to_bytes(&c)).unwrap();
+                assert_eq!(back, c);
+                assert_eq!(back.id(), c.id());
+            }
+        }
+    }
 }

@@ -192,6 +192,8 @@ const NO_SESSION: SessionConfig = SessionConfig {
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        #[cfg(feature = "rice-codes")]
+        rice: false,
     },
     feature_space: 0,
     int8_scale: 0.0,

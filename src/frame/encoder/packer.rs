@@ -81,6 +81,7 @@ pub(super) fn append<const D: usize>(
     let evicted = matches!(codes, Codes::Queued(_));
     let count = weight.class();
     let Some(Ok(h)) = out.get_mut(*used..).map(|o| match weight {
+        _ if codec.is_rice() => rice_head(&mut trial, (key, residency, evicted), weight, o),
         Weight::Count(c) => encode_summary_head(&mut trial, key, residency, evicted, c, o),
         #[cfg(feature = "forgetting")]
         Weight::Stamped { n, time } => {
@@ -93,7 +94,8 @@ pub(super) fn append<const D: usize>(
     let c = match codes {
         Codes::Queued(codes) => {
             // The queue entry has room for the largest codes; this summary's are the leading ones.
-            let codes = codes.get(..codec.code_len_for(D, count)).unwrap_or(codes);
+            let len = codec.codes_len(D, count, codes).unwrap_or(codes.len());
+            let codes = codes.get(..len).unwrap_or(codes);
             match out.get_mut(at..at + codes.len()) {
                 Some(o) => {
                     o.copy_from_slice(codes);
@@ -116,4 +118,20 @@ pub(super) fn append<const D: usize>(
     *used = at + c;
     *base = trial;
     true
+}
+
+/// A summary's head in a Rice session (`wire::encode_rice_head`).
+fn rice_head(
+    base: &mut DeltaBase,
+    id: (VoxelKey, u32, bool),
+    weight: Weight,
+    out: &mut [u8],
+) -> Result<usize, crate::wire::WireError> {
+    match weight {
+        Weight::Count(c) => crate::wire::encode_rice_head(base, id, c, None, out),
+        #[cfg(feature = "forgetting")]
+        Weight::Stamped { n, time } => {
+            crate::wire::encode_rice_head(base, id, 0, Some((time, n)), out)
+        }
+    }
 }

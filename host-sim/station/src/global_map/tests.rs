@@ -15,6 +15,7 @@ fn map() -> GlobalMap<D> {
             mean_bits_growth: 0,
             lead: 0,
             lead_bits: 0,
+            rice: false,
         },
         0,
     );

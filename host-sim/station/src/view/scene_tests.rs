@@ -13,6 +13,7 @@ fn map() -> GlobalMap<D> {
         mean_bits_growth: 0,
         lead: 0,
         lead_bits: 0,
+        rice: false,
     };
     GlobalMap::new(SessionConfig::new(&MapConfig::default(), D, codec, 0)).unwrap()
 }

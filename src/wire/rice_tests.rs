@@ -1,0 +1,254 @@
+//! Rice-coded sessions (`rice-codes`): summaries round-trip within their bound, take exactly the bytes
+//! they say, refuse cut or damaged input, and the session says which coding it uses.
+
+use super::*;
+use crate::config::MapConfig;
+use crate::key::VoxelKey;
+use crate::obs::ObsStats;
+
+const RICE: SummaryCodec = SummaryCodec {
+    mean_bits: 3,
+    psi_blocks: 2,
+    mean_bits_growth: 3,
+    lead: 8,
+    lead_bits: 3,
+    rice: true,
+};
+
+/// Deterministic statistics: a few large leading components, small equal noise in the rest.
+fn sample(seed: u32, count: f32) -> ObsStats<64> {
+    let mut s = seed.wrapping_mul(2_654_435_761).max(1);
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        (s as f32 / u32::MAX as f32) * 2.0 - 1.0
+    };
+    ObsStats {
+        count,
+        mean: core::array::from_fn(|i| next() * if i < 5 { 0.5 } else { 0.05 }),
+        scatter: core::array::from_fn(|_| 0.01 * (1.0 + libm::fabsf(next()))),
+    }
+}
+
+fn error(a: &[f32; 64], b: &[f32; 64]) -> f32 {
+    libm::sqrtf(a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum())
+}
+
+#[test]
+fn rice_summaries_round_trip_within_their_bound_and_take_the_bytes_they_say() {
+    for codec in [RICE, SummaryCodec { lead: 0, ..RICE }] {
+        let mut frame = [0u8; 4096];
+        let mut at = 0;
+        let mut base = DeltaBase::default();
+        let mut sent = [ObsStats::<64>::EMPTY; 12];
+        for (i, s) in sent.iter_mut().enumerate() {
+            *s = sample(i as u32 + 1, (1u32 << (i % 8)) as f32 + (i / 8) as f32);
+            let mut codes = [0u8; 128];
+            let n = encode_codes(codec, s, &mut codes).unwrap();
+            assert!(
+                n <= codec.code_len(64),
+                "{n} > the most a summary's codes take"
+            );
+            assert_eq!(codec.codes_len(64, s.count as u32, &codes).unwrap(), n);
+            let key = VoxelKey::new(i as i32, -(i as i32), 3);
+            let id = (key, 1 + i as u32 / 3, i % 2 == 0);
+            let h =
+                encode_rice_head(&mut base, id, s.count as u32, None, &mut frame[at..]).unwrap();
+            frame[at + h..at + h + n].copy_from_slice(&codes[..n]);
+            at += h + n;
+        }
+        let batch = VoxelBatch {
+            count: sent.len() as u16,
+            summaries: &frame[..at],
+        };
+        let got: heapless::Vec<Summary<64>, 12> =
+            batch.iter::<64>(codec).map(|r| r.unwrap()).collect();
+        assert_eq!(got.len(), sent.len());
+        for (i, (g, s)) in got.iter().zip(&sent).enumerate() {
+            assert_eq!(g.key, VoxelKey::new(i as i32, -(i as i32), 3));
+            assert_eq!((g.residency, g.is_final), (1 + i as u32 / 3, i % 2 == 0));
+            let mut codes = [0u8; 128];
+            encode_codes(codec, s, &mut codes).unwrap();
+            let bound = mean_error_bound(codec, 64, &codes, s.count as u32);
+            let e = error(&g.obs.mean, &s.mean);
+            assert!(e <= bound * 1.001 + 1e-7, "error {e} > bound {bound}");
+            // The default policy keeps the error within a few percent of ‖m‖.
+            let norm = libm::sqrtf(s.mean.iter().map(|v| v * v).sum());
+            assert!(e < 0.1 * norm, "error {e} of ‖m‖ {norm}");
+            assert_eq!(g.obs.count, s.count);
+        }
+    }
+}
+
+#[test]
+fn rice_codes_are_smaller_than_packed_codes_of_the_same_error() {
+    // Same steps as 6-bit packed codes would need: the Rice codes take fewer bytes on typical means.
+    let (mut rice, mut packed) = (0usize, 0usize);
+    let six = SummaryCodec {
+        mean_bits: 6,
+        lead_bits: 2,
+        rice: false,
+        ..RICE
+    };
+    for i in 0..64 {
+        let s = sample(i + 100, 1.0);
+        let mut codes = [0u8; 128];
+        rice += encode_codes(RICE, &s, &mut codes).unwrap();
+        packed += encode_codes(six, &s, &mut codes).unwrap();
+    }
+    assert!(rice < packed, "{rice} ≥ {packed}");
+}
+
+#[test]
+fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_step_bytes() {
+    let mut s = sample(9, 64.0);
+    s.mean[0] = 5.0e4;
+    s.mean[40] = -3.0e-6;
+    let mut codes = [0u8; 128];
+    let n = encode_codes(RICE, &s, &mut codes).unwrap();
+    assert!(n <= RICE.code_len(64));
+    let back = decode_codes::<64>(RICE, 64.0, &codes[..n]).unwrap();
+    assert!(error(&back.mean, &s.mean) <= mean_error_bound(RICE, 64, &codes, 64) * 1.001);
+    // Means beyond every step code (the fuzz target `roundtrip` found an overflow here): encoded
+    // within the bound on bytes, decoded finite.
+    let mut huge = sample(11, 3.0);
+    huge.mean = core::array::from_fn(|i| if i % 2 == 0 { 3.0e38 } else { -1.0e30 });
+    let n = encode_codes(RICE, &huge, &mut codes).unwrap();
+    assert!(n <= RICE.code_len(64));
+    let back = decode_codes::<64>(RICE, 3.0, &codes[..n]).unwrap();
+    assert!(back.mean.iter().all(|v| v.is_finite()));
+    let zero = ObsStats::<64> {
+        count: 1.0,
+        mean: [0.0; 64],
+        scatter: [0.0; 64],
+    };
+    assert_eq!(encode_codes(RICE, &zero, &mut codes).unwrap(), 2);
+    assert_eq!(&codes[..2], &[0, 0]);
+    assert_eq!(
+        decode_codes::<64>(RICE, 1.0, &codes[..2]).unwrap().mean,
+        [0.0; 64]
+    );
+}
+
+#[test]
+fn cut_or_damaged_rice_codes_are_refused_or_decode_to_finite_values() {
+    let s = sample(3, 5.0);
+    let mut codes = [0u8; 128];
+    let n = encode_codes(RICE, &s, &mut codes).unwrap();
+    for cut in 0..n {
+        assert!(
+            decode_codes::<64>(RICE, 5.0, &codes[..cut]).is_err(),
+            "cut at {cut} of {n} accepted"
+        );
+    }
+    // Garbage never panics; what decodes is finite.
+    let mut x = 0x1234_5678u32;
+    for _ in 0..2000 {
+        let mut junk = [0u8; 96];
+        for b in junk.iter_mut() {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            *b = x as u8;
+        }
+        if let Ok(o) = decode_codes::<64>(RICE, 3.0, &junk) {
+            assert!(o.mean.iter().all(|v| v.is_finite()));
+        }
+    }
+}
+
+#[test]
+fn a_session_says_it_rice_codes_and_packed_sessions_keep_their_bytes() {
+    let packed = SessionConfig::new(
+        &MapConfig::default(),
+        64,
+        SummaryCodec {
+            rice: false,
+            ..RICE
+        },
+        5,
+    );
+    let rice = SessionConfig::new(&MapConfig::default(), 64, RICE, 5);
+    assert_ne!(packed.id(), rice.id(), "codings never merge");
+    let header = FrameHeader {
+        version: PROTOCOL_VERSION,
+        robot: 1,
+        session: 2,
+        seq: 0,
+        config_id: rice.id(),
+    };
+    let (mut a, mut b) = ([0u8; 128], [0u8; 128]);
+    let na = encode_body(&header, &Message::Session(packed), &mut a).unwrap();
+    let nb = encode_body(&header, &Message::Session(rice), &mut b).unwrap();
+    assert_eq!(nb, na + 1, "one extension byte");
+    assert_eq!(&a[..na], &b[..na]);
+    assert_eq!(b[na], messages::RICE_EXTENSION);
+    assert_eq!(parse_body(&b[..nb]).unwrap().1, Message::Session(rice));
+    assert_eq!(parse_body(&a[..na]).unwrap().1, Message::Session(packed));
+    // Another extension byte is malformed.
+    b[na] = 2;
+    assert_eq!(parse_body(&b[..nb]), Err(WireError::Malformed));
+    // With forgetting: half-life, then the Rice byte.
+    #[cfg(feature = "forgetting")]
+    {
+        let f = rice.with_forgetting(crate::forget::Forgetting::new(100.0));
+        let n = encode_body(&header, &Message::Session(f), &mut b).unwrap();
+        assert_eq!(n, na + 5);
+        assert_eq!(parse_body(&b[..n]).unwrap().1, Message::Session(f));
+        assert_ne!(f.id(), rice.id());
+    }
+}
+
+#[test]
+fn a_rice_head_is_a_few_bits_per_field_and_round_trips_stamps() {
+    let mut out = [0u8; 32];
+    let mut base = DeltaBase::default();
+    // Neighbouring keys, same residency, one point: 1 + 3 + 1 + 3 (final) + 3 bits → 2 bytes.
+    encode_rice_head(
+        &mut base,
+        (VoxelKey::new(0, 1, 0), 0, true),
+        1,
+        None,
+        &mut out,
+    )
+    .unwrap();
+    let n = encode_rice_head(
+        &mut base,
+        (VoxelKey::new(1, 1, 0), 0, true),
+        1,
+        None,
+        &mut out,
+    )
+    .unwrap();
+    assert_eq!(n, 2);
+    // A stamped head: count 0, the tick, the weight's bits; then its codes.
+    let codec = SummaryCodec { lead: 0, ..RICE };
+    let s = sample(5, 2.5);
+    let mut base = DeltaBase::default();
+    let h = encode_rice_head(
+        &mut base,
+        (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false),
+        0,
+        Some((123_456, 2.5)),
+        &mut out,
+    )
+    .unwrap();
+    let mut frame = [0u8; 256];
+    frame[..h].copy_from_slice(&out[..h]);
+    let c = encode_codes_as(codec, &s, stamped_class(2.5).unwrap(), &mut frame[h..]).unwrap();
+    let (mut base, mut at) = (DeltaBase::default(), 0);
+    let got = decode_summary::<64>(codec, &mut base, &frame[..h + c], &mut at).unwrap();
+    assert_eq!(at, h + c);
+    assert_eq!(got.time, Some(123_456));
+    assert_eq!(got.obs.count, 2.5);
+    assert_eq!(
+        (got.key, got.residency, got.is_final),
+        (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false)
+    );
+    // Cut anywhere: refused.
+    for cut in 0..h + c {
+        let (mut base, mut at) = (DeltaBase::default(), 0);
+        assert!(decode_summary::<64>(codec, &mut base, &frame[..cut], &mut at).is_err());
+    }
+}
