@@ -22,9 +22,9 @@ pub(super) const SLOTS: usize = 256;
 const ROWS: usize = 25;
 /// Reach of the window: ±2 voxels per axis.
 const R: i32 = 2;
-/// "Not read yet": all bits set (a NaN, never a count the map returns as such: one it did would be read
-/// again, not misread), which a memset writes.
-const UNREAD: u32 = u32::MAX;
+/// "Not read yet": 0, which a memclr writes. A slot holds a count's bits inverted, so 0 is the NaN with
+/// all bits set (never a count the map returns as such: one it did would be read again, not misread).
+const UNREAD: u32 = 0;
 
 /// The slot step of an offset (see the module docs), as a wrapping byte.
 pub(super) fn step(o: [i8; 3]) -> u8 {
@@ -41,7 +41,7 @@ pub(super) fn x_major(dx: i32, dy: i32, dz: i32) -> usize {
 pub(super) struct Window {
     /// Point counts of the hits (n > 0) by slot; 0 where none.
     pub(super) sources: [f32; SLOTS],
-    /// Map counts read so far by slot (their bits); [`UNREAD`] where not read yet.
+    /// Map counts read so far by slot (their bits, inverted); [`UNREAD`] where not read yet.
     counts: [u32; SLOTS],
     /// Per plane (z mod 8): bit `row` set where a source sits.
     occupied: [u32; 8],
@@ -96,10 +96,10 @@ impl Window {
             w += k * self.sources[s];
             let mut c = self.counts[s];
             if c == UNREAD {
-                c = map.observed_count(self.key(s)).to_bits();
+                c = !map.observed_count(self.key(s)).to_bits();
                 self.counts[s] = c;
             }
-            k_sum += k * f32::from_bits(c);
+            k_sum += k * f32::from_bits(!c);
         }
         (w, k_sum)
     }
@@ -171,6 +171,7 @@ impl Window {
             return;
         };
         for dz in -R..=R {
+            core::hint::black_box(()); // keeps this loop rolled (flash; see `view_score`)
             // Rows below the centre's (x, y) in key order; the centre's own row below it in z.
             let rows = if dz < 0 { (1 << 13) - 1 } else { (1 << 12) - 1 };
             let mut bits = self.occupied[(c.z.wrapping_add(dz) & 7) as usize] & rows;
