@@ -171,8 +171,9 @@ impl Window {
             return;
         };
         for dz in -R..=R {
-            core::hint::black_box(()); // keeps this loop rolled (flash; see `view_score`)
-                                       // Rows below the centre's (x, y) in key order; the centre's own row below it in z.
+            // Keeps this loop rolled (flash; see `view_score`).
+            core::hint::black_box(());
+            // Rows below the centre's (x, y) in key order; the centre's own row below it in z.
             let rows = if dz < 0 { (1 << 13) - 1 } else { (1 << 12) - 1 };
             let mut bits = self.occupied[(c.z.wrapping_add(dz) & 7) as usize] & rows;
             while bits != 0 {
