@@ -38,7 +38,7 @@ pub const CODEC: latentbki::wire::SummaryCodec = latentbki::wire::SummaryCodec {
     mean_bits: 3,
     psi_blocks: 2,
     mean_bits_growth: 3,
-    lead: 8,
+    lead: 4,
     lead_bits: 3,
     rice: true,
 };

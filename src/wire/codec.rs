@@ -179,7 +179,7 @@ impl SummaryCodec {
             return Ok(self.code_len_for(dim, count));
         }
         let lead = usize::from(self.lead);
-        let mean = super::rice::bands_len(codes, lead, dim.saturating_sub(lead))?;
+        let mean = super::rice::bands_len(codes, lead, dim.saturating_sub(lead), count)?;
         Ok(mean + self.scatter_len(count))
     }
 
@@ -482,7 +482,7 @@ pub fn decode_codes_as<const D: usize>(
     let mut at = 0;
     if codec.is_rice() {
         let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
-        at = super::rice::decode_bands(bytes, [&mut *lead_band, &mut *rest_band], |c| {
+        at = super::rice::decode_bands(bytes, [&mut *lead_band, &mut *rest_band], n, |c| {
             log_value(c, SCALE_OFFSET)
         })?;
         let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
@@ -537,12 +537,10 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
     if codec.is_rice() {
         // Rounding to the nearest multiple of the step: half a step per component (a sender coarsens
         // its steps rather than clamp a value).
+        let steps = super::rice::steps(codes, lead > 0, count).unwrap_or([0; 2]);
         let mut sq = 0.0;
-        for (code, len) in codes
-            .iter()
-            .zip([lead, dim - lead].into_iter().filter(|&l| l > 0))
-        {
-            let e = log_value(*code, SCALE_OFFSET) / 2.0;
+        for (&code, len) in steps.iter().zip([lead, dim - lead]) {
+            let e = log_value(code, SCALE_OFFSET) / 2.0;
             sq += len as f32 * e * e;
         }
         return libm::sqrtf(sq);

@@ -45,8 +45,8 @@ pub struct Policy {
 impl Policy {
     /// The policy Rice sessions are encoded with (measured on the demo's map, `demo --codec-study`).
     pub const DEFAULT: Self = Self {
-        lead_eighths: 48,
-        rest_eighths: 44,
+        lead_eighths: 52,
+        rest_eighths: 47,
         lead_per_doubling: 4,
         rest_per_doubling: 2,
         rest_single: 0,
@@ -220,9 +220,22 @@ fn step_codes(policy: Policy, norm_codes: [u8; 2], count: u32) -> [u8; 2] {
     ]
 }
 
-/// Write the rotated bands `bands` (lead, rest; the lead may be empty) into `out`: a step byte per
-/// non-empty band, then one bit stream, padded with 0 bits to a whole byte: for each band whose step
-/// byte is not 0, k (3 bits) and the band's values. Steps are chosen by `policy` from ‖m‖ (`norm`) and
+/// The rest band's step code a receiver predicts from the lead band's, for a summary of `count` points:
+/// `lead` − 5 − 2·min(⌊log₂ n⌋, 6) (the default policy's offsets: what it sends needs one bit).
+fn predicted_rest(lead: u8, count: u32) -> i32 {
+    let doublings = if count > 1 { count.ilog2().min(6) } else { 0 } as i32;
+    i32::from(lead) - 5 - 2 * doublings
+}
+
+/// Bits of the Exp-Golomb code of v.
+const fn exp_golomb_bits(v: u32) -> u32 {
+    2 * (32 - (v + 1).leading_zeros()) - 1
+}
+
+/// Write the rotated bands `bands` (lead, rest; the lead may be empty) into `out`: the first non-empty
+/// band's step byte, then one bit stream, padded with 0 bits to a whole byte: with a lead band, the rest
+/// band's step as the Exp-Golomb code of zigzag(its code − [`predicted_rest`]); then for each band whose
+/// step is not 0, k (3 bits) and the band's values. Steps are chosen by `policy` from ‖m‖ (`norm`) and
 /// made coarser by whole octaves until the bytes fit `cap`. Returns the bytes written.
 pub(super) fn encode_bands(
     policy: Policy,
@@ -233,19 +246,15 @@ pub(super) fn encode_bands(
     step_value: impl Fn(u8) -> f32,
     norm_code: impl Fn(f32) -> u8,
 ) -> Result<usize, WireError> {
-    let heads = bands.iter().filter(|b| !b.is_empty()).count();
+    let has_lead = !bands[0].is_empty();
     let zero = |b: &[f32]| b.iter().all(|&v| v == 0.0 || !v.is_finite());
-    let base = |x: f32| {
-        if x > 0.0 && x.is_finite() {
-            norm_code(x)
-        } else {
-            0
-        }
+    let base = if norm > 0.0 && norm.is_finite() {
+        norm_code(norm)
+    } else {
+        0
     };
-    let bases = [base(norm); 2];
-    // Find the steps (and each band's k) whose bytes fit `cap`.
     // The policy's steps, at least as coarse as keeps every value within ±MAX_Q steps (never clamped).
-    let mut finest = step_codes(policy, bases, count);
+    let mut finest = step_codes(policy, [base; 2], count);
     for (f, band) in finest.iter_mut().zip(&bands) {
         let peak = band.iter().fold(0.0f32, |a, &v| {
             if libm::fabsf(v) > a {
@@ -261,11 +270,11 @@ pub(super) fn encode_bands(
     // Coarser by whole octaves until the bytes fit `cap`.
     let mut chosen = None;
     for extra in 0..=32u8 {
-        let mut bits = 0;
         let mut ks = [0u32; 2];
         let mut codes = [0u8; 2];
+        let mut bits = 0;
         for (i, band) in bands.iter().enumerate() {
-            if band.is_empty() || bases[i] == 0 || zero(band) {
+            if band.is_empty() || base == 0 || zero(band) {
                 continue;
             }
             codes[i] = finest[i].saturating_add(8u8.saturating_mul(extra));
@@ -273,31 +282,35 @@ pub(super) fn encode_bands(
             ks[i] = k;
             bits += b;
         }
-        let len = heads + (bits as usize).div_ceil(8);
+        if has_lead {
+            bits += exp_golomb_bits(zigzag(
+                i32::from(codes[1]) - predicted_rest(codes[0], count),
+            ));
+        }
+        let len = 1 + (bits as usize).div_ceil(8);
         if len <= cap {
             chosen = Some((codes, ks, len));
             break;
         }
     }
     // Cannot happen (at 32 octaves coarser every value is 0 or ±1): all bands zero.
-    let (codes, ks, len) = chosen.unwrap_or(([0; 2], [0; 2], heads));
+    let (codes, ks, len) = chosen.unwrap_or(([0; 2], [0; 2], 2));
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
-    let (head, stream) = out.split_at_mut(heads.min(len));
-    let mut h = head.iter_mut();
-    for (band, &code) in bands.iter().zip(&codes) {
-        if !band.is_empty() {
-            if let Some(b) = h.next() {
-                *b = code;
-            }
-        }
-    }
+    let Some((head, stream)) = out.split_first_mut() else {
+        return Err(WireError::BufferFull);
+    };
+    *head = if has_lead { codes[0] } else { codes[1] };
     let mut w = BitWriter {
         out: stream,
         bit: 0,
     };
+    if has_lead {
+        let residual = i32::from(codes[1]) - predicted_rest(codes[0], count);
+        w.exp_golomb(u64::from(zigzag(residual)));
+    }
     for ((band, &code), &k) in bands.iter().zip(&codes).zip(&ks) {
-        if code == 0 {
+        if code == 0 || band.is_empty() {
             continue;
         }
         let step = step_value(code);
@@ -306,30 +319,51 @@ pub(super) fn encode_bands(
             put_symbol(&mut w, zigzag(quantize(v, step)), k);
         }
     }
-    Ok(len)
+    Ok(1 + w.bytes()?)
 }
 
-/// Read bands written by [`encode_bands`] from the start of `bytes` into `bands` (values q·step, still
-/// rotated); returns the bytes they took.
+/// The step codes (lead, rest) at the start of `bytes` (a summary of `count` points) and a reader at the
+/// bit after them.
+fn read_steps(
+    bytes: &[u8],
+    has_lead: bool,
+    count: u32,
+) -> Result<([u8; 2], BitReader<'_>), WireError> {
+    let (&first, rest) = bytes.split_first().ok_or(WireError::Truncated)?;
+    let mut r = BitReader {
+        bytes: rest,
+        bit: 0,
+    };
+    if !has_lead {
+        return Ok(([0, first], r));
+    }
+    let z = u32::try_from(r.exp_golomb()?).map_err(|_| WireError::Malformed)?;
+    let code = predicted_rest(first, count) + unzigzag(z);
+    let code = u8::try_from(code).map_err(|_| WireError::Malformed)?;
+    Ok(([first, code], r))
+}
+
+/// The step codes (lead, rest; 0 for a band that is absent or zero) of the Rice-coded mean at the start
+/// of `bytes`, a summary of `count` points.
+pub(super) fn steps(bytes: &[u8], has_lead: bool, count: u32) -> Result<[u8; 2], WireError> {
+    read_steps(bytes, has_lead, count).map(|(codes, _)| codes)
+}
+
+/// Read bands written by [`encode_bands`] (a summary of `count` points) from the start of `bytes` into
+/// `bands` (values q·step, still rotated); returns the bytes they took.
 pub(super) fn decode_bands(
     bytes: &[u8],
     mut bands: [&mut [f32]; 2],
+    count: u32,
     step_value: impl Fn(u8) -> f32,
 ) -> Result<usize, WireError> {
-    let heads = bands.iter().filter(|b| !b.is_empty()).count();
-    let head = bytes.get(..heads).ok_or(WireError::Truncated)?;
-    let mut r = BitReader {
-        bytes: bytes.get(heads..).unwrap_or_default(),
-        bit: 0,
-    };
-    let mut h = head.iter();
-    for band in bands.iter_mut() {
-        if band.is_empty() {
-            continue;
-        }
-        let code = h.next().copied().unwrap_or(0);
+    let (codes, mut r) = read_steps(bytes, !bands[0].is_empty(), count)?;
+    for (band, &code) in bands.iter_mut().zip(&codes) {
         if code == 0 {
             band.fill(0.0);
+            continue;
+        }
+        if band.is_empty() {
             continue;
         }
         let step = step_value(code);
@@ -338,21 +372,20 @@ pub(super) fn decode_bands(
             *v = unzigzag(r.symbol(k)?) as f32 * step;
         }
     }
-    Ok(heads + r.bit.div_ceil(8))
+    Ok(1 + r.bytes())
 }
 
-/// Bytes of the bands at the start of `bytes` (lead band of `lead` components, if any, then `rest`).
-pub(super) fn bands_len(bytes: &[u8], lead: usize, rest: usize) -> Result<usize, WireError> {
-    let heads = usize::from(lead > 0) + usize::from(rest > 0);
-    let head = bytes.get(..heads).ok_or(WireError::Truncated)?;
-    let mut r = BitReader {
-        bytes: bytes.get(heads..).unwrap_or_default(),
-        bit: 0,
-    };
-    let lens = [lead, rest];
-    let mut h = head.iter();
-    for &len in lens.iter().filter(|&&l| l > 0) {
-        if h.next().copied().unwrap_or(0) == 0 {
+/// Bytes of the bands at the start of `bytes` (lead band of `lead` components, if any, then `rest`) of a
+/// summary of `count` points.
+pub(super) fn bands_len(
+    bytes: &[u8],
+    lead: usize,
+    rest: usize,
+    count: u32,
+) -> Result<usize, WireError> {
+    let (codes, mut r) = read_steps(bytes, lead > 0, count)?;
+    for (&len, &code) in [lead, rest].iter().zip(&codes) {
+        if code == 0 || len == 0 {
             continue;
         }
         let k = r.get(K_BITS)?;
@@ -360,13 +393,14 @@ pub(super) fn bands_len(bytes: &[u8], lead: usize, rest: usize) -> Result<usize,
             r.symbol(k)?;
         }
     }
-    Ok(heads + r.bit.div_ceil(8))
+    Ok(1 + r.bytes())
 }
 
-/// The most bytes a Rice-coded mean takes for D components: `D` × 6 bits and the two k, plus the step
-/// bytes. (Packed codes of 6 bits per component; a sender coarsens its steps to stay within it.)
+/// The most bytes a Rice-coded mean takes for D components: the step byte, then `D` × 6 bits, the two k
+/// and the rest band's step residual (at most 19 bits). (Packed codes of 6 bits per component; a sender
+/// coarsens its steps to stay within it.)
 pub const fn cap(dim: usize, lead: usize) -> usize {
-    (6 * dim + 2 * K_BITS as usize).div_ceil(8) + if lead > 0 { 2 } else { 1 }
+    1 + (6 * dim + 2 * K_BITS as usize + if lead > 0 { 19 } else { 0 }).div_ceil(8)
 }
 
 #[cfg(test)]

@@ -101,7 +101,7 @@ fn rice_codes_are_smaller_than_packed_codes_of_the_same_error() {
 }
 
 #[test]
-fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_step_bytes() {
+fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_steps() {
     let mut s = sample(9, 64.0);
     s.mean[0] = 5.0e4;
     s.mean[40] = -3.0e-6;
@@ -123,12 +123,16 @@ fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_ste
         mean: [0.0; 64],
         scatter: [0.0; 64],
     };
+    // The lead step byte 0, then the rest step's residual: 0 − the prediction (0 − 5), 7 bits.
     assert_eq!(encode_codes(RICE, &zero, &mut codes).unwrap(), 2);
-    assert_eq!(&codes[..2], &[0, 0]);
+    assert_eq!(codes[0], 0);
     assert_eq!(
         decode_codes::<64>(RICE, 1.0, &codes[..2]).unwrap().mean,
         [0.0; 64]
     );
+    let one_band = SummaryCodec { lead: 0, ..RICE };
+    assert_eq!(encode_codes(one_band, &zero, &mut codes).unwrap(), 1);
+    assert_eq!(codes[0], 0);
 }
 
 #[test]

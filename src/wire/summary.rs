@@ -288,13 +288,18 @@ pub fn decode_summary<const D: usize>(
         (count as u32, obs, codes, None)
     };
     let psi_at = codes.len() - codec.scatter_len(count).min(codes.len());
-    let rest_at = match (codec.is_rice(), codec.lead) {
-        (_, 0) => 0,
-        (true, _) => 1,
-        (false, _) => codec.lead_len_for(count),
+    let mean_scale = if codec.is_rice() {
+        super::rice::steps(codes, codec.lead > 0, count)?.contains(&u8::MAX)
+    } else {
+        let rest_at = if codec.lead == 0 {
+            0
+        } else {
+            codec.lead_len_for(count)
+        };
+        codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX)
     };
     let at_ceiling = Ceiling {
-        mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
+        mean_scale,
         psi: codes.get(psi_at) == Some(&u8::MAX),
     };
     *base = DeltaBase { key, residency };
