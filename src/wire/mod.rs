@@ -31,8 +31,8 @@ pub use messages::{
     VoxelBatch, NO_FEATURE_SPACE,
 };
 pub use summary::{
-    decode_summary, encode_rice_head, encode_stamped_head, encode_summary, encode_summary_head,
-    Ceiling, DeltaBase, Summary, SummaryIter,
+    decode_summary, encode_rice_head, encode_rice_summary, encode_stamped_head, encode_summary,
+    encode_summary_head, Ceiling, DeltaBase, Summary, SummaryIter,
 };
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.

@@ -1,15 +1,16 @@
-//! Entropy-coded mean bands (a session's *Rice coding*, [`super::SummaryCodec::rice`]): each band's
-//! rotated components are rounded to multiples of a step the sender chooses per voxel, and the integers
-//! are written with a Golomb–Rice code whose parameter the sender also chooses per band.
+//! Rice sessions ([`super::SummaryCodec::rice`]): each summary is one bit stream — its head as
+//! Exp-Golomb codes, its mean bands rounded to multiples of steps the sender chooses per voxel and written
+//! with a Golomb–Rice code whose parameter it also chooses per band, then the scatter.
 //!
 //! Why: the packed codes give every component the same number of bits and scale them to the band's
 //! largest entry, so most codes sit near the middle and their entropy is well below their width
 //! (`demo --codec-study`). A step chosen freely and a variable-length code spend bits where the values
-//! are: on the demo's map the base station's error against the robot's map falls from 0.040 to ≈ 0.02 for
-//! about the bytes of the packed codes (`host-sim/src/demo_radio.rs`). Rice rather than an arithmetic
-//! coder: a summary is ≈ 30 bytes and must stand alone (a lost frame breaks no other), where an arithmetic
-//! coder's flush costs 2–4 bytes per summary, and a Rice code is a few lines to implement from the spec.
-//! The step is the sender's policy ([`Policy`]): a receiver only multiplies.
+//! are: on the demo's map the base station's error against the robot's map falls from 0.0399 to 0.0235
+//! for 13.91 instead of 13.78 wire bytes per point (`host-sim/src/demo_radio.rs`). Rice rather than an
+//! arithmetic coder: a summary is ≈ 35 bytes and must stand alone (a lost frame breaks no other), where an
+//! arithmetic coder's flush costs 2–4 bytes per summary, and a Rice code is a few lines to implement from
+//! the spec (its symbols cost ≈ 0.1–0.15 bit more than their entropy). The step is the sender's policy
+//! ([`Policy`]): a receiver only multiplies.
 
 use super::WireError;
 
@@ -123,11 +124,6 @@ impl BitReader<'_> {
         Ok(((1u64 << len) | high | low) - 1)
     }
 
-    /// Bytes read (the last one whole).
-    pub(super) fn bytes(&self) -> usize {
-        self.bit.div_ceil(8)
-    }
-
     pub(super) fn get(&mut self, n: u32) -> Result<u32, WireError> {
         let mut v = 0u32;
         for i in 0..n as usize {
@@ -232,20 +228,20 @@ const fn exp_golomb_bits(v: u32) -> u32 {
     2 * (32 - (v + 1).leading_zeros()) - 1
 }
 
-/// Write the rotated bands `bands` (lead, rest; the lead may be empty) into `out`: the first non-empty
-/// band's step byte, then one bit stream, padded with 0 bits to a whole byte: with a lead band, the rest
-/// band's step as the Exp-Golomb code of zigzag(its code − [`predicted_rest`]); then for each band whose
-/// step is not 0, k (3 bits) and the band's values. Steps are chosen by `policy` from ‖m‖ (`norm`) and
-/// made coarser by whole octaves until the bytes fit `cap`. Returns the bytes written.
+/// Write the rotated bands `bands` (lead, rest; the lead may be empty) into `w`: the first non-empty
+/// band's step code (8 bits); with a lead band, the rest band's step as the Exp-Golomb code of
+/// zigzag(its code − [`predicted_rest`]); then for each band whose step is not 0, k (3 bits) and the
+/// band's values. Steps are chosen by `policy` from ‖m‖ (`norm`) and made coarser by whole octaves until
+/// the mean takes at most `cap` bytes.
 pub(super) fn encode_bands(
     policy: Policy,
     bands: [&[f32]; 2],
     (norm, count): (f32, u32),
     cap: usize,
-    out: &mut [u8],
+    w: &mut BitWriter<'_>,
     step_value: impl Fn(u8) -> f32,
     norm_code: impl Fn(f32) -> u8,
-) -> Result<usize, WireError> {
+) {
     let has_lead = !bands[0].is_empty();
     let zero = |b: &[f32]| b.iter().all(|&v| v == 0.0 || !v.is_finite());
     let base = if norm > 0.0 && norm.is_finite() {
@@ -268,7 +264,7 @@ pub(super) fn encode_bands(
         }
     }
     // Coarser by whole octaves until the bytes fit `cap`.
-    let mut chosen = None;
+    let mut chosen = ([0u8; 2], [0u32; 2]);
     for extra in 0..=32u8 {
         let mut ks = [0u32; 2];
         let mut codes = [0u8; 2];
@@ -287,24 +283,14 @@ pub(super) fn encode_bands(
                 i32::from(codes[1]) - predicted_rest(codes[0], count),
             ));
         }
-        let len = 1 + (bits as usize).div_ceil(8);
-        if len <= cap {
-            chosen = Some((codes, ks, len));
+        // Cannot fail at 32 octaves coarser (every value 0 or ±1); else all bands zero.
+        if (bits as usize).div_ceil(8) < cap {
+            chosen = (codes, ks);
             break;
         }
     }
-    // Cannot happen (at 32 octaves coarser every value is 0 or ±1): all bands zero.
-    let (codes, ks, len) = chosen.unwrap_or(([0; 2], [0; 2], 2));
-    let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
-    out.fill(0);
-    let Some((head, stream)) = out.split_first_mut() else {
-        return Err(WireError::BufferFull);
-    };
-    *head = if has_lead { codes[0] } else { codes[1] };
-    let mut w = BitWriter {
-        out: stream,
-        bit: 0,
-    };
+    let (codes, ks) = chosen;
+    w.put(u32::from(if has_lead { codes[0] } else { codes[1] }), 8);
     if has_lead {
         let residual = i32::from(codes[1]) - predicted_rest(codes[0], count);
         w.exp_golomb(u64::from(zigzag(residual)));
@@ -316,84 +302,55 @@ pub(super) fn encode_bands(
         let step = step_value(code);
         w.put(k, K_BITS);
         for &v in band.iter() {
-            put_symbol(&mut w, zigzag(quantize(v, step)), k);
+            put_symbol(w, zigzag(quantize(v, step)), k);
         }
     }
-    Ok(1 + w.bytes()?)
 }
 
-/// The step codes (lead, rest) at the start of `bytes` (a summary of `count` points) and a reader at the
-/// bit after them.
-fn read_steps(
-    bytes: &[u8],
+/// The step codes (lead, rest; 0 for a band that is absent or zero) read from `r`, a summary of
+/// `count` points.
+pub(super) fn read_steps(
+    r: &mut BitReader<'_>,
     has_lead: bool,
     count: u32,
-) -> Result<([u8; 2], BitReader<'_>), WireError> {
-    let (&first, rest) = bytes.split_first().ok_or(WireError::Truncated)?;
-    let mut r = BitReader {
-        bytes: rest,
-        bit: 0,
-    };
+) -> Result<[u8; 2], WireError> {
+    let first = r.get(8)? as u8;
     if !has_lead {
-        return Ok(([0, first], r));
+        return Ok([0, first]);
     }
     let z = u32::try_from(r.exp_golomb()?).map_err(|_| WireError::Malformed)?;
     let code = predicted_rest(first, count) + unzigzag(z);
     let code = u8::try_from(code).map_err(|_| WireError::Malformed)?;
-    Ok(([first, code], r))
+    Ok([first, code])
 }
 
-/// The step codes (lead, rest; 0 for a band that is absent or zero) of the Rice-coded mean at the start
-/// of `bytes`, a summary of `count` points.
-pub(super) fn steps(bytes: &[u8], has_lead: bool, count: u32) -> Result<[u8; 2], WireError> {
-    read_steps(bytes, has_lead, count).map(|(codes, _)| codes)
-}
-
-/// Read bands written by [`encode_bands`] (a summary of `count` points) from the start of `bytes` into
-/// `bands` (values q·step, still rotated); returns the bytes they took.
+/// Read bands written by [`encode_bands`] (a summary of `count` points) from `r` into `bands` (values
+/// q·step, still rotated; `None` for a band only to be skipped); returns the step codes.
 pub(super) fn decode_bands(
-    bytes: &[u8],
-    mut bands: [&mut [f32]; 2],
+    r: &mut BitReader<'_>,
+    lens: [usize; 2],
+    mut bands: [Option<&mut [f32]>; 2],
     count: u32,
     step_value: impl Fn(u8) -> f32,
-) -> Result<usize, WireError> {
-    let (codes, mut r) = read_steps(bytes, !bands[0].is_empty(), count)?;
-    for (band, &code) in bands.iter_mut().zip(&codes) {
-        if code == 0 {
-            band.fill(0.0);
-            continue;
-        }
-        if band.is_empty() {
+) -> Result<[u8; 2], WireError> {
+    let codes = read_steps(r, lens[0] > 0, count)?;
+    for ((band, &code), &len) in bands.iter_mut().zip(&codes).zip(&lens) {
+        if code == 0 || len == 0 {
+            if let Some(b) = band {
+                b.fill(0.0);
+            }
             continue;
         }
         let step = step_value(code);
         let k = r.get(K_BITS)?;
-        for v in band.iter_mut() {
-            *v = unzigzag(r.symbol(k)?) as f32 * step;
+        for i in 0..len {
+            let q = unzigzag(r.symbol(k)?);
+            if let Some(v) = band.as_mut().and_then(|b| b.get_mut(i)) {
+                *v = q as f32 * step;
+            }
         }
     }
-    Ok(1 + r.bytes())
-}
-
-/// Bytes of the bands at the start of `bytes` (lead band of `lead` components, if any, then `rest`) of a
-/// summary of `count` points.
-pub(super) fn bands_len(
-    bytes: &[u8],
-    lead: usize,
-    rest: usize,
-    count: u32,
-) -> Result<usize, WireError> {
-    let (codes, mut r) = read_steps(bytes, lead > 0, count)?;
-    for (&len, &code) in [lead, rest].iter().zip(&codes) {
-        if code == 0 || len == 0 {
-            continue;
-        }
-        let k = r.get(K_BITS)?;
-        for _ in 0..len {
-            r.symbol(k)?;
-        }
-    }
-    Ok(1 + r.bytes())
+    Ok(codes)
 }
 
 /// The most bytes a Rice-coded mean takes for D components: the step byte, then `D` × 6 bits, the two k
