@@ -13,7 +13,9 @@
 //! Everything else (frame header, session configuration, link statistics) is plain postcard with serde.
 //! The format is written down below; `tests` check the code against it. Submodules: [`messages`] (frame
 //! header, session configuration, link statistics, the message enum: postcard), [`summary`] (a voxel
-//! summary's bytes) and [`codec`] (its quantized codes).
+//! summary's bytes), [`codec`] (its quantized codes) and [`rice`] (a *Rice session*'s summaries: one bit
+//! stream of variable-length codes each, announced by a byte after the session message; feature
+//! `rice-codes`).
 //!
 #![doc = include_str!("../wire_spec.md")]
 
