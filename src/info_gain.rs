@@ -32,7 +32,7 @@ use crate::key::VoxelKey;
 use crate::obs::{GatherError, ObsLookup};
 
 mod window;
-use window::{carry_counts, place_sources, window_offset, CENTRE, MAX_TARGETS, SLOTS, WIN};
+use window::{Window, MAX_TARGETS};
 
 /// The λ an unseen voxel under a flat prior is taken to have (see the module docs).
 pub const UNSEEN_LAMBDA: f32 = 0.05;
@@ -79,6 +79,8 @@ pub enum ScoreError {
     SubVoxelKernel,
     /// The hits are not sorted by key without repeats.
     UnsortedHits,
+    /// The filter is wider than f = 3 and the `wide-view-score` feature is off.
+    WideFilter,
 }
 
 impl core::fmt::Display for ScoreError {
@@ -88,12 +90,16 @@ impl core::fmt::Display for ScoreError {
             Self::UnsortedHits => {
                 f.write_str("view hits must be sorted by voxel key, without repeats")
             }
+            Self::WideFilter => f.write_str(
+                "view scores for filters wider than 3 need the `wide-view-score` feature",
+            ),
         }
     }
 }
 
 impl core::error::Error for ScoreError {}
 
+#[cfg(any(test, feature = "wide-view-score"))]
 #[inline(never)] // one copy of the search in flash
 fn count_at(hits: &[(VoxelKey, f32)], key: VoxelKey) -> f32 {
     hits.binary_search_by_key(&key, |h| h.0)
@@ -132,59 +138,41 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
 ) -> Result<f32, ScoreError> {
     check(lut, hits)?;
     let offsets = lut.offsets();
-    if offsets.len() > MAX_TARGETS || offsets.iter().flatten().any(|c| !(-1..=1).contains(c)) {
+    // f ≤ 3: every offset within ±1, at most 27 of them.
+    if lut.reach() > 1 || offsets.len() > MAX_TARGETS {
+        #[cfg(feature = "wide-view-score")]
         return generic(lut, map, prior_lambda, hits);
+        #[cfg(not(feature = "wide-view-score"))]
+        return Err(ScoreError::WideFilter);
     }
     let weights = lut.weights(0);
-    // Each offset as a step in the window (x-major, like the key's order).
-    let mut rel = [0i16; MAX_TARGETS];
-    for (r, o) in rel.iter_mut().zip(offsets) {
-        *r = WIN * WIN * i16::from(o[0]) + WIN * i16::from(o[1]) + i16::from(o[2]);
-    }
-    let rel = rel.get(..offsets.len()).unwrap_or(&[]);
-    // Bit a of reaches[s]: window position s is a source of target a (at CENTRE + rel[a]).
-    let mut reaches = [0u32; SLOTS];
-    let n = rel.len();
-    for ap in 0..n * n {
-        if let (Some(&ra), Some(&rp)) = (rel.get(ap / n), rel.get(ap % n)) {
-            reaches[(CENTRE + ra + rp) as usize & (SLOTS - 1)] |= 1 << (ap / n);
+    // Each offset as a step between slots of the window; and bit a of reaches[q]: the voxel at x-major
+    // position q around a hit is a source of its target a. (`black_box`: an opaque call in a loop keeps
+    // LLVM from unrolling it, which on Cortex-M would spend flash on a once-per-view setup.)
+    let mut steps = [0u8; MAX_TARGETS];
+    let mut reaches = [0u32; 128];
+    for (a, (t, oa)) in steps.iter_mut().zip(offsets).enumerate() {
+        *t = window::step(*oa);
+        for op in offsets {
+            core::hint::black_box(());
+            let d = |i: usize| i32::from(oa[i]) + i32::from(op[i]);
+            reaches[window::x_major(d(0), d(1), d(2)) & 127] |= 1 << a;
         }
     }
-    let mut sources = [0.0f32; SLOTS];
-    let mut counts = [f32::NAN; SLOTS];
-    let mut prev = None;
+    let steps = steps.get(..offsets.len()).unwrap_or(&[]);
+    let mut win = Window::new();
     let mut score = 0.0;
-    for (i, &(hit, _)) in hits.iter().enumerate() {
-        place_sources(&mut sources, hits, i);
-        carry_counts(&mut counts, prev, hit);
-        prev = Some(hit);
-        // Window positions below the centre hold exactly the earlier hits (x-major = key order).
+    for &(hit, _) in hits {
+        win.move_to(hits, hit);
+        // Targets an earlier hit reaches were counted from it.
         let mut counted = 0u32;
-        for (&n, &m) in sources.iter().zip(&reaches).take(CENTRE as usize) {
-            if n > 0.0 {
-                counted |= m;
+        win.earlier(|q| counted |= reaches[q & 127]);
+        let centre = win.centre_slot();
+        for (a, &ra) in steps.iter().enumerate() {
+            if counted & (1 << a) == 0 {
+                let (w, k_sum) = win.sums(map, steps, weights, centre.wrapping_add(ra));
+                score += gain(prior_lambda + k_sum, w);
             }
-        }
-        for (a, &ra) in rel.iter().enumerate() {
-            if counted & (1 << a) != 0 {
-                continue;
-            }
-            let t = CENTRE + ra;
-            let mut w = 0.0;
-            let mut k_sum = 0.0;
-            for (&rp, &k) in rel.iter().zip(weights) {
-                // In 0..WIN3 (|ra|, |rp| ≤ CENTRE / 2); the mask lets the compiler see it in bounds.
-                let s = (t + rp) as usize & (SLOTS - 1);
-                // 0 where no hit with n > 0: adding k · 0 = +0 leaves w (≥ +0) as skipping it would.
-                w += k * sources[s];
-                let mut c = counts[s];
-                if c.is_nan() {
-                    c = map.observed_count(hit.offset(window_offset(s)));
-                    counts[s] = c;
-                }
-                k_sum += k * c;
-            }
-            score += gain(prior_lambda + k_sum, w);
         }
     }
     Ok(score)
@@ -196,6 +184,7 @@ fn gain(lambda: f32, w: f32) -> f32 {
     voxel_gain(lambda, w)
 }
 
+#[cfg(feature = "wide-view-score")]
 /// [`view_score`] for filters wider than f = 3: per hit and offset, binary searches over the hits (stopping
 /// at the first earlier hit that already counted the target) and one [`gathered_count`] per target.
 fn generic<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
@@ -431,7 +420,12 @@ mod tests {
                 let take = 1 + next(n as u32) as usize;
                 let hits = &hits[..take];
                 let lambda0 = [0.0, 0.5, 2.0][case % 3];
-                let fast = view_score(&lut, &List(&map), lambda0, hits).unwrap();
+                let fast = match view_score(&lut, &List(&map), lambda0, hits) {
+                    Err(ScoreError::WideFilter) if f > 3 && !cfg!(feature = "wide-view-score") => {
+                        continue
+                    }
+                    r => r.unwrap(),
+                };
                 let brute = view_score_brute(&lut, &List(&map), lambda0, hits).unwrap();
                 assert_eq!(
                     fast.to_bits(),
@@ -440,6 +434,49 @@ mod tests {
                 );
                 assert!(fast > 0.0 || hits.iter().all(|h| h.1 <= 0.0));
             }
+        }
+    }
+
+    #[test]
+    fn view_score_equals_the_definition_on_walls_and_runs() {
+        // Views like a camera's: planes and runs of neighbouring voxels (the window moves along z by 1 to 7
+        // voxels, and to the next row), with gaps and some n ≤ 0.
+        let mut state = 0x9e37_79b9_u32;
+        let mut next = move |m: u32| {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) % m
+        };
+        let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
+        for case in 0..30 {
+            let mut map = [(VoxelKey::default(), seen(0.0)); 80];
+            for m in &mut map {
+                let k = VoxelKey::new(next(4) as i32, next(12) as i32 - 6, next(14) as i32 - 7);
+                *m = (k, seen(next(20) as f32 * 0.5));
+            }
+            let mut hits = [(VoxelKey::default(), 0.0f32); 96];
+            let mut n = 0;
+            let (x0, gap) = (next(3) as i32, 1 + next(4) as i32);
+            'fill: for x in x0..x0 + 1 + next(2) as i32 {
+                for y in -4..4 {
+                    let mut z = -6 + next(3) as i32;
+                    while z < 6 {
+                        if n == hits.len() {
+                            break 'fill;
+                        }
+                        hits[n] = (VoxelKey::new(x, y, z), next(6) as f32 * 0.5 - 0.5);
+                        n += 1;
+                        z += if next(4) == 0 { gap } else { 1 };
+                    }
+                }
+            }
+            let hits = &hits[..n];
+            let fast = view_score(&lut, &List(&map), 0.5, hits).unwrap();
+            let brute = view_score_brute(&lut, &List(&map), 0.5, hits).unwrap();
+            assert_eq!(
+                fast.to_bits(),
+                brute.to_bits(),
+                "case {case}: {fast} vs {brute}"
+            );
         }
     }
 

@@ -367,3 +367,20 @@ fn integer_millimetre_points_reach_the_same_voxels() {
         (1, 1, 1)
     );
 }
+
+#[test]
+fn the_code_check_finds_minus_128_at_every_position_and_nothing_else() {
+    use latentbki::obs::code_in_range;
+    // Every byte value at every position of a 4-code word and of the tail (D = 7: one word and three).
+    for pos in 0..7 {
+        for v in i8::MIN..=i8::MAX {
+            let mut codes = [-127i8, 127, 0, 1, -1, 64, -64];
+            codes[pos] = v;
+            assert_eq!(code_in_range(&codes), v != i8::MIN, "code {v} at {pos}");
+        }
+    }
+    // Neighbouring bytes cannot mask or fake one (0x7F and 0x80 next to each other, all 0x80).
+    assert!(!code_in_range(&[127i8, -128, 127, 127]));
+    assert!(!code_in_range(&[i8::MIN; 8]));
+    assert!(code_in_range(&[-127i8, 127, -127, 127, -1, 0, 1, -127]));
+}

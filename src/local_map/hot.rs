@@ -56,6 +56,15 @@ impl<const D: usize> Acc<D> {
         }
     }
 
+    /// Hold nothing, for the voxel's next visit, in place: the sums stay sums (zeroed where they lie: a
+    /// `memclr`, no 516-byte value built and copied in), so an int8 voxel's first point only adds.
+    pub(super) fn clear(&mut self) {
+        match self {
+            Self::Codes(c) => *c = CodeSums::EMPTY,
+            Self::Float(o) => *o = ObsStats::EMPTY,
+        }
+    }
+
     /// Turn integer sums into f32 statistics.
     pub(super) fn make_float(&mut self, scale: f32) {
         if let Self::Codes(c) = self {
@@ -143,7 +152,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     pub(super) fn restart_hot(&mut self, h: usize) {
         self.cool(h);
         let Some(e) = self.hot.get_mut(h) else { return };
-        e.acc = Acc::Float(ObsStats::EMPTY);
+        e.acc.clear();
         if let Some(slot) = self.slots.get_mut(usize::from(e.slot)) {
             slot.hot = h as u8 + 1;
         }
@@ -201,14 +210,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         };
         let stamp = self.clock.now();
         if let Some(e) = self.hot.get_mut(h) {
-            *e = Hot {
-                acc: Acc::Float(ObsStats::EMPTY),
-                key,
-                slot: s as u16,
-                referenced: true,
-                live_sent: 0.0,
-                stamp,
-            };
+            // Field by field: the entry's accumulator is cleared where it lies (see `Acc::clear`).
+            e.acc.clear();
+            e.key = key;
+            e.slot = s as u16;
+            e.referenced = true;
+            e.live_sent = 0.0;
+            e.stamp = stamp;
         }
         if let Some(slot) = self.slots.get_mut(s) {
             slot.hot = h as u8 + 1;

@@ -44,6 +44,16 @@ use nalgebra::Isometry3;
 /// Hot (f32) voxels by default (`H`): ≈ 17 KiB at D = 64.
 pub const HOT_VOXELS: usize = 32;
 
+/// Entries of the recent-hot hint: one per position of a voxel in an 8 × 8 × 4 tile.
+const RECENT_HOT: usize = 256;
+
+/// The recent-hot entry of a voxel: its position in an 8 × 8 × 4 tiling of space, so that neighbouring
+/// voxels (what a scan visits in turn) never share one.
+#[inline(always)]
+fn hot_tile(k: VoxelKey) -> usize {
+    ((k.x & 7) | (k.y & 7) << 3 | (k.z & 3) << 6) as usize
+}
+
 /// Largest window radius in voxels: keeps every resident key within the i16 wrap range of the centre.
 pub const MAX_WINDOW_VOXELS: i32 = 16_000;
 
@@ -166,6 +176,10 @@ pub struct LocalMap<
     hot_hand: usize,
     /// The hot entry the previous point went to (sensors return points in scan order).
     last_hot: usize,
+    /// The hot entry a voxel of each 8 × 8 × 4 tile position last went to ([`hot_tile`]): a point whose
+    /// voxel is hot but not the previous point's finds its entry here instead of through the index (a
+    /// hint, checked against the entry's key: never stale in effect, nothing to invalidate).
+    recent_hot: [u8; RECENT_HOT],
     /// Decoding scratch (a 516-byte temporary kept off the device stack).
     scratch: ObsStats<D>,
     centre: VoxelKey,
@@ -222,6 +236,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         hot_len: 0,
         hot_hand: 0,
         last_hot: 0,
+        recent_hot: [0; RECENT_HOT],
         scratch: ObsStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
         stranded: false,
@@ -465,6 +480,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                 return Ok(self.last_hot);
             }
         }
+        // A voxel holds at most one hot entry, so an entry in use that holds `key` is the one the index
+        // would lead to (its slot's `hot`): the same answer without the lookup.
+        let tile = hot_tile(key);
+        if let Some(&h) = self.recent_hot.get(tile) {
+            let h = usize::from(h);
+            if h < self.hot_len && self.hot.get(h).is_some_and(|e| e.key == key) {
+                self.last_hot = h;
+                return Ok(h);
+            }
+        }
         let h = match self.find(key) {
             Some((_, s)) => match self.slots.get(s).map_or(0, |slot| slot.hot) {
                 0 => self.make_hot(s, key),
@@ -476,6 +501,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             }
         };
         self.last_hot = h;
+        if let Some(r) = self.recent_hot.get_mut(tile) {
+            *r = h as u8;
+        }
         Ok(h)
     }
 

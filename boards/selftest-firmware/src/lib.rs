@@ -269,10 +269,12 @@ fn configure(scenario: &Scenario, mapper: &mut Robot) -> Result<(), i32> {
 fn score_view<M: Markers + Default>(s: usize, i: u32, m: &Map) {
     use latentbki::key::VoxelKey;
     let c = m.centre();
-    let hits: [(VoxelKey, f32); VIEW_VOXELS] = core::array::from_fn(|j| {
-        let (y, z) = ((j / 8) as i32 - 4, (j % 8) as i32 - 4);
-        (VoxelKey::new(c.x + 10, c.y + y, c.z + z), 1.0)
-    });
+    // Zeroed (a memclr), then filled by a loop that is not unrolled: `array::from_fn` would be, into
+    // half a KiB of flash.
+    let mut hits = [(VoxelKey::default(), 0.0f32); VIEW_VOXELS];
+    for (j, h) in hits.iter_mut().enumerate() {
+        *h = (wall_voxel(c, j), 1.0);
+    }
     let mut probe = M::default();
     probe.start();
     let score = latentbki::info_gain::view_score(m.kernel(), m, m.prior().lambda, &hits);
@@ -285,6 +287,15 @@ fn score_view<M: Markers + Default>(s: usize, i: u32, m: &Map) {
         VIEW_VOXELS,
         score.map_or(0, f32::to_bits)
     );
+}
+
+/// Voxel `j` of the candidate view: row j / 8, column j % 8 of the 8 × 8 wall 1 m ahead of `c`. Not
+/// inlined, so that the loop calling it stays a loop.
+#[cfg(feature = "forgetting")]
+#[inline(never)]
+fn wall_voxel(c: latentbki::key::VoxelKey, j: usize) -> latentbki::key::VoxelKey {
+    let (y, z) = ((j / 8) as i32 - 4, (j % 8) as i32 - 4);
+    latentbki::key::VoxelKey::new(c.x + 10, c.y + y, c.z + z)
 }
 
 #[cfg(not(feature = "panic-never"))]

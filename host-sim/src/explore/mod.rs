@@ -21,16 +21,16 @@
 //! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
 //! voxel the map cannot answer is wrong.
 
+mod command;
 mod truth;
 pub mod world;
 
+pub use command::{explore, ExploreArgs};
 pub use truth::Truth;
 
-use crate::eval::experiment::{decoding, Decoding, Setup};
+use crate::eval::experiment::Decoding;
 use crate::eval::methods::D;
-use crate::sim::indoor::{self, IndoorRun, IndoorScene};
 use crate::sim::sensor::DepthCamera;
-use crate::sim::vocab::Vocabulary;
 use crate::sim::{mix_all, LabelledPoint};
 use crate::ObsMap;
 use anyhow::{Context, Result};
@@ -40,7 +40,6 @@ use latentbki::{info_gain::voxel_gain, kernel::KernelLut, key::VoxelKey, MapConf
 use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rustc_hash::FxHashMap;
-use std::path::PathBuf;
 use world::{View, World};
 
 /// How the next view is chosen.
@@ -284,157 +283,4 @@ pub fn mean_curve(runs: &[Vec<Sample>], grid: &[f32], get: fn(&Sample) -> f64) -
             sum / runs.len().max(1) as f64
         })
         .collect()
-}
-
-/// `host-sim explore`.
-#[derive(clap::Args, Debug)]
-pub struct ExploreArgs {
-    /// Driving budget per run, metres.
-    #[arg(long, default_value_t = 40.0)]
-    pub budget: f32,
-    /// Runs per explorer (seeds 1..=N of the camera's pixel sampling, the encoder noise and random choice).
-    #[arg(long, default_value_t = 3)]
-    pub seeds: u64,
-    /// Seed of the house layout.
-    #[arg(long, default_value_t = 1)]
-    pub layout_seed: u64,
-    /// Information gain's utility is score / (path + this many metres).
-    #[arg(long, default_value_t = UTILITY_OFFSET_M)]
-    pub utility_offset: f32,
-    /// Directory for the plot.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
-}
-
-/// Run every explorer on every seed, print the table and the headline, write `explore.png`.
-pub fn explore(args: &ExploreArgs) -> Result<()> {
-    if !(args.budget > 0.0 && args.budget.is_finite()) || args.seeds == 0 {
-        anyhow::bail!("--budget must be a positive number of metres and --seeds at least 1");
-    }
-    if !(args.utility_offset > 0.0 && args.utility_offset.is_finite()) {
-        anyhow::bail!("--utility-offset must be a positive number of metres");
-    }
-    let scene = IndoorScene::generate(args.layout_seed);
-    let training = IndoorScene::generate(mix_all(&[args.layout_seed, 0x7EA1]));
-    let train_seq = indoor::sequence(
-        &training,
-        &IndoorRun {
-            seed: mix_all(&[args.layout_seed, 0x7EA1]),
-            ..IndoorRun::default()
-        },
-    );
-    let config = train_seq.config;
-    // A quarter of the voxels (spatially even): the curves are measured after every frame.
-    let truth = Truth::from_loop(&scene, &config).thinned(4);
-    let world = World::new(scene, &config, DepthCamera::default().pixels_per_frame)?;
-    let mut runs: Vec<Vec<Vec<Sample>>> = vec![Vec::new(); Planner::ALL.len()];
-    for seed in 1..=args.seeds {
-        let setup = Setup {
-            seed,
-            ..Setup::default()
-        };
-        let dec = decoding(&Vocabulary::builtin(), &train_seq, &setup)?;
-        let results: Vec<Result<Vec<Sample>>> = std::thread::scope(|s| {
-            let handles: Vec<_> = Planner::ALL
-                .iter()
-                .map(|&p| {
-                    let (world, dec, truth, config) = (&world, &dec, &truth, &config);
-                    s.spawn(move || {
-                        let explorer = Explorer {
-                            planner: p,
-                            seed,
-                            budget: args.budget,
-                            utility_offset: args.utility_offset,
-                        };
-                        run(world, dec, truth, config, &explorer)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| {
-                    h.join()
-                        .unwrap_or_else(|_| Err(anyhow::anyhow!("a run panicked")))
-                })
-                .collect()
-        });
-        for (i, r) in results.into_iter().enumerate() {
-            runs[i].push(r?);
-        }
-    }
-    let step = 0.25;
-    let grid: Vec<f32> = (0..=(args.budget / step).ceil() as usize)
-        .map(|i| (i as f32 * step).min(args.budget))
-        .collect();
-    let acc: Vec<Vec<f64>> = runs
-        .iter()
-        .map(|r| mean_curve(r, &grid, |s| s.accuracy))
-        .collect();
-    let miou: Vec<Vec<f64>> = runs
-        .iter()
-        .map(|r| mean_curve(r, &grid, |s| s.miou))
-        .collect();
-    println!(
-        "explore: house {} ({} ground-truth voxels, {} candidate views), budget {} m, {} seeds",
-        args.layout_seed,
-        truth.len(),
-        world.views.len(),
-        args.budget,
-        args.seeds
-    );
-    for (i, p) in Planner::ALL.iter().enumerate() {
-        let frames: f64 = runs[i]
-            .iter()
-            .map(|r| f64::from(r.last().map_or(0, |s| s.frames)))
-            .sum::<f64>()
-            / args.seeds as f64;
-        let driven: f64 = runs[i]
-            .iter()
-            .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
-            .sum::<f64>()
-            / args.seeds as f64;
-        println!(
-            "  {:<17} final accuracy {:5.1} %, mIoU {:5.1} %, {:5.1} frames, {:4.1} m driven",
-            p.name(),
-            100.0 * acc[i].last().copied().unwrap_or(0.0),
-            100.0 * miou[i].last().copied().unwrap_or(0.0),
-            frames,
-            driven
-        );
-    }
-    let headline = headline(&grid, &acc, &runs[1]);
-    println!("{headline}");
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let path = args.out.join("explore.png");
-    let names = Planner::ALL.map(Planner::name);
-    crate::eval::figures::distance_curves(&path, &names, &grid, &acc, &miou)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    println!("wrote {}", path.display());
-    Ok(())
-}
-
-/// The headline: where information gain reaches random's final accuracy, and the accuracies there.
-fn headline(grid: &[f32], acc: &[Vec<f64>], random_runs: &[Vec<Sample>]) -> String {
-    let (ig, random, frontier) = (&acc[0], &acc[1], &acc[2]);
-    let target = random.last().copied().unwrap_or(0.0);
-    let random_distance = random_runs
-        .iter()
-        .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
-        .sum::<f64>()
-        / random_runs.len().max(1) as f64;
-    match ig.iter().position(|&a| a >= target) {
-        Some(i) => format!(
-            "exploration: information gain reaches random's final accuracy at {:.0} % of its distance; at that distance nearest-frontier {:.1} %, information gain {:.1} %",
-            100.0 * f64::from(grid[i]) / random_distance.max(1e-9),
-            100.0 * frontier[i],
-            100.0 * ig[i]
-        ),
-        None => format!(
-            "exploration: information gain does not reach random's final accuracy ({:.1} %) within the budget; at the end nearest-frontier {:.1} %, information gain {:.1} %",
-            100.0 * target,
-            100.0 * frontier.last().copied().unwrap_or(0.0),
-            100.0 * ig.last().copied().unwrap_or(0.0)
-        ),
-    }
 }

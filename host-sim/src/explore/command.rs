@@ -1,0 +1,261 @@
+//! The `host-sim explore` command: every explorer on every seed of one house or several, the table, the
+//! headline line per house, the plot; and over several houses one summary line, so that a claim about
+//! exploration can be checked on houses the planner was not tuned on.
+
+use super::{mean_curve, run, world::World, Explorer, Planner, Sample, Truth, UTILITY_OFFSET_M};
+use crate::eval::experiment::{decoding, Setup};
+use crate::sim::indoor::{self, IndoorRun, IndoorScene};
+use crate::sim::mix_all;
+use crate::sim::sensor::DepthCamera;
+use crate::sim::vocab::Vocabulary;
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+
+/// `host-sim explore`.
+#[derive(clap::Args, Debug)]
+pub struct ExploreArgs {
+    /// Driving budget per run, metres.
+    #[arg(long, default_value_t = 40.0)]
+    pub budget: f32,
+    /// Runs per explorer (seeds 1..=N of the camera's pixel sampling, the encoder noise and random choice).
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u64,
+    /// Seed of the house layout.
+    #[arg(long, default_value_t = 1, conflicts_with = "layouts")]
+    pub layout_seed: u64,
+    /// Several house layouts (comma-separated seeds, e.g. 1,2,3): each one's table and headline, then one
+    /// summary line over them.
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    pub layouts: Vec<u64>,
+    /// Information gain's utility is score / (path + this many metres).
+    #[arg(long, default_value_t = UTILITY_OFFSET_M)]
+    pub utility_offset: f32,
+    /// Directory for the plot (`explore.png`; `explore-<layout>.png` with `--layouts`).
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+}
+
+/// One house's outcome, for the summary.
+struct Outcome {
+    layout: u64,
+    /// Share of random's distance at which information gain reaches random's final accuracy (None: never).
+    share: Option<f64>,
+    /// Information gain minus nearest-frontier accuracy there (at the end if never), points.
+    lead: f64,
+}
+
+/// Run every explorer on every seed of each house, print the tables and headlines, write the plots.
+pub fn explore(args: &ExploreArgs) -> Result<()> {
+    if !(args.budget > 0.0 && args.budget.is_finite()) || args.seeds == 0 {
+        anyhow::bail!("--budget must be a positive number of metres and --seeds at least 1");
+    }
+    if !(args.utility_offset > 0.0 && args.utility_offset.is_finite()) {
+        anyhow::bail!("--utility-offset must be a positive number of metres");
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    if args.layouts.is_empty() {
+        house(args, args.layout_seed, "explore.png")?;
+        return Ok(());
+    }
+    let mut outcomes = Vec::new();
+    for &layout in &args.layouts {
+        outcomes.push(house(args, layout, &format!("explore-{layout}.png"))?);
+    }
+    println!("{}", summary(&outcomes));
+    Ok(())
+}
+
+/// One house: the table, the headline, the plot.
+fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
+    let scene = IndoorScene::generate(layout);
+    let training = IndoorScene::generate(mix_all(&[layout, 0x7EA1]));
+    let train_seq = indoor::sequence(
+        &training,
+        &IndoorRun {
+            seed: mix_all(&[layout, 0x7EA1]),
+            ..IndoorRun::default()
+        },
+    );
+    let config = train_seq.config;
+    // A quarter of the voxels (spatially even): the curves are measured after every frame.
+    let truth = Truth::from_loop(&scene, &config).thinned(4);
+    let world = World::new(scene, &config, DepthCamera::default().pixels_per_frame)?;
+    let mut runs: Vec<Vec<Vec<Sample>>> = vec![Vec::new(); Planner::ALL.len()];
+    for seed in 1..=args.seeds {
+        let setup = Setup {
+            seed,
+            ..Setup::default()
+        };
+        let dec = decoding(&Vocabulary::builtin(), &train_seq, &setup)?;
+        let results: Vec<Result<Vec<Sample>>> = std::thread::scope(|s| {
+            let handles: Vec<_> = Planner::ALL
+                .iter()
+                .map(|&p| {
+                    let (world, dec, truth, config) = (&world, &dec, &truth, &config);
+                    s.spawn(move || {
+                        let explorer = Explorer {
+                            planner: p,
+                            seed,
+                            budget: args.budget,
+                            utility_offset: args.utility_offset,
+                        };
+                        run(world, dec, truth, config, &explorer)
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| {
+                    h.join()
+                        .unwrap_or_else(|_| Err(anyhow::anyhow!("a run panicked")))
+                })
+                .collect()
+        });
+        for (i, r) in results.into_iter().enumerate() {
+            runs[i].push(r?);
+        }
+    }
+    let step = 0.25;
+    let grid: Vec<f32> = (0..=(args.budget / step).ceil() as usize)
+        .map(|i| (i as f32 * step).min(args.budget))
+        .collect();
+    let acc: Vec<Vec<f64>> = runs
+        .iter()
+        .map(|r| mean_curve(r, &grid, |s| s.accuracy))
+        .collect();
+    let miou: Vec<Vec<f64>> = runs
+        .iter()
+        .map(|r| mean_curve(r, &grid, |s| s.miou))
+        .collect();
+    println!(
+        "explore: house {} ({} ground-truth voxels, {} candidate views), budget {} m, {} seeds",
+        layout,
+        truth.len(),
+        world.views.len(),
+        args.budget,
+        args.seeds
+    );
+    for (i, p) in Planner::ALL.iter().enumerate() {
+        let frames: f64 = runs[i]
+            .iter()
+            .map(|r| f64::from(r.last().map_or(0, |s| s.frames)))
+            .sum::<f64>()
+            / args.seeds as f64;
+        let driven: f64 = runs[i]
+            .iter()
+            .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
+            .sum::<f64>()
+            / args.seeds as f64;
+        println!(
+            "  {:<17} final accuracy {:5.1} %, mIoU {:5.1} %, {:5.1} frames, {:4.1} m driven",
+            p.name(),
+            100.0 * acc[i].last().copied().unwrap_or(0.0),
+            100.0 * miou[i].last().copied().unwrap_or(0.0),
+            frames,
+            driven
+        );
+    }
+    let (line, outcome) = headline(layout, &grid, &acc, &runs[1]);
+    println!("{line}");
+    let path = args.out.join(png);
+    let names = Planner::ALL.map(Planner::name);
+    crate::eval::figures::distance_curves(&path, &names, &grid, &acc, &miou)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    println!("wrote {}", path.display());
+    Ok(outcome)
+}
+
+/// The headline: where information gain reaches random's final accuracy, and the accuracies there.
+fn headline(
+    layout: u64,
+    grid: &[f32],
+    acc: &[Vec<f64>],
+    random_runs: &[Vec<Sample>],
+) -> (String, Outcome) {
+    let (ig, random, frontier) = (&acc[0], &acc[1], &acc[2]);
+    let target = random.last().copied().unwrap_or(0.0);
+    let random_distance = random_runs
+        .iter()
+        .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
+        .sum::<f64>()
+        / random_runs.len().max(1) as f64;
+    match ig.iter().position(|&a| a >= target) {
+        Some(i) => {
+            let share = f64::from(grid[i]) / random_distance.max(1e-9);
+            (
+                format!(
+                    "exploration: information gain reaches random's final accuracy at {:.0} % of its distance; at that distance nearest-frontier {:.1} %, information gain {:.1} %",
+                    100.0 * share,
+                    100.0 * frontier[i],
+                    100.0 * ig[i]
+                ),
+                Outcome {
+                    layout,
+                    share: Some(share),
+                    lead: 100.0 * (ig[i] - frontier[i]),
+                },
+            )
+        }
+        None => {
+            let (f, g) = (
+                frontier.last().copied().unwrap_or(0.0),
+                ig.last().copied().unwrap_or(0.0),
+            );
+            (
+                format!(
+                    "exploration: information gain does not reach random's final accuracy ({:.1} %) within the budget; at the end nearest-frontier {:.1} %, information gain {:.1} %",
+                    100.0 * target,
+                    100.0 * f,
+                    100.0 * g
+                ),
+                Outcome {
+                    layout,
+                    share: None,
+                    lead: 100.0 * (g - f),
+                },
+            )
+        }
+    }
+}
+
+/// One line over several houses: how many meet the goal (≤ 60 % of random's distance, ahead of
+/// nearest-frontier there), the median and worst share.
+fn summary(outcomes: &[Outcome]) -> String {
+    let met = outcomes
+        .iter()
+        .filter(|o| o.share.is_some_and(|s| s <= 0.605) && o.lead > 0.0)
+        .count();
+    let mut shares: Vec<f64> = outcomes
+        .iter()
+        .map(|o| o.share.unwrap_or(f64::INFINITY))
+        .collect();
+    shares.sort_by(f64::total_cmp);
+    let median = shares.get(shares.len() / 2).copied().unwrap_or(f64::NAN);
+    let worst = outcomes
+        .iter()
+        .max_by(|a, b| {
+            a.share
+                .unwrap_or(f64::INFINITY)
+                .total_cmp(&b.share.unwrap_or(f64::INFINITY))
+        })
+        .map_or(0, |o| o.layout);
+    let pct = |s: f64| {
+        if s.is_finite() {
+            format!("{:.0} %", 100.0 * s)
+        } else {
+            "never".to_string()
+        }
+    };
+    let ahead = outcomes.iter().filter(|o| o.lead > 0.0).count();
+    format!(
+        "exploration over {} houses: information gain reaches random's final accuracy within 60 % of its distance and ahead of nearest-frontier there on {} of {}; share of random's distance median {}, worst {} (house {}); ahead of nearest-frontier on {}",
+        outcomes.len(),
+        met,
+        outcomes.len(),
+        pct(median),
+        pct(shares.last().copied().unwrap_or(f64::NAN)),
+        worst,
+        ahead
+    )
+}
