@@ -39,7 +39,7 @@ pub const UNSEEN_LAMBDA: f32 = 0.05;
 
 /// Expected reduction, in nats per feature dimension, of the entropy (scale part) of a voxel's Student-t
 /// predictive if it received kernel weight `w` of observations, given its current confidence `lambda`
-/// (floored at [`UNSEEN_LAMBDA`]). 0 for `w ≤ 0` or NaN.
+/// (floored at [`UNSEEN_LAMBDA`]). 0 for `w ≤ 0` or NaN, and for an infinite `w` or `lambda`.
 #[inline]
 pub fn voxel_gain(lambda: f32, w: f32) -> f32 {
     if !(w > 0.0) {
@@ -51,7 +51,11 @@ pub fn voxel_gain(lambda: f32, w: f32) -> f32 {
         UNSEEN_LAMBDA
     };
     let ratio = (l + w) * (l + 1.0) / (l * (l + w + 1.0));
-    0.5 * core::f32::consts::LN_2 * crate::f32math::log2(ratio)
+    // About 1 or more, a normal number, for finite w and λ; an infinite one makes it NaN or ∞.
+    if !(ratio < f32::INFINITY) {
+        return 0.0;
+    }
+    0.5 * core::f32::consts::LN_2 * crate::f32math::log2_normal(ratio)
 }
 
 /// The kernel-weighted point count K a gather gives at `target` (its posterior's λ is λ₀ + K), reading
@@ -295,9 +299,11 @@ mod tests {
         // Never seen (flat prior): the floor, λ = 0.05, w = 1: ½ ln(1.05·1.05 / (0.05·2.05)).
         let unseen = 0.5 * libm::logf(1.05 * 1.05 / (0.05 * 2.05));
         assert!((voxel_gain(0.0, 1.0) - unseen).abs() < 1e-5);
-        // No weight, no gain; NaN weight, none either.
+        // No weight, no gain; NaN or infinite weight or confidence, none either.
         assert_eq!(voxel_gain(3.0, 0.0), 0.0);
         assert_eq!(voxel_gain(3.0, f32::NAN), 0.0);
+        assert_eq!(voxel_gain(3.0, f32::INFINITY), 0.0);
+        assert_eq!(voxel_gain(f32::INFINITY, 2.0), 0.0);
     }
 
     #[test]

@@ -39,10 +39,10 @@ pub(super) fn x_major(dx: i32, dy: i32, dz: i32) -> usize {
 
 /// The window around the current hit.
 pub(super) struct Window {
-    /// Point counts of the hits (n > 0) by slot; 0 where none.
-    pub(super) sources: [f32; SLOTS],
-    /// Map counts read so far by slot (their bits, inverted); [`UNREAD`] where not read yet.
-    counts: [u32; SLOTS],
+    /// By slot: the point count of the hit there (n > 0; 0 where none), and the map count read there (its
+    /// bits, inverted; [`UNREAD`] where not read yet). Side by side: one address for both, and a plane is
+    /// cleared by one memclr.
+    slots: [(f32, u32); SLOTS],
     /// Per plane (z mod 8): bit `row` set where a source sits.
     occupied: [u32; 8],
     /// Per row: the first hit above the window's top plane in that row (or beyond the row).
@@ -53,8 +53,7 @@ pub(super) struct Window {
 impl Window {
     pub(super) fn new() -> Self {
         Self {
-            sources: [0.0; SLOTS],
-            counts: [UNREAD; SLOTS],
+            slots: [(0.0, UNREAD); SLOTS],
             occupied: [0; 8],
             next: [0; ROWS],
             centre: None,
@@ -93,11 +92,11 @@ impl Window {
         for (&step, &k) in steps.iter().zip(weights) {
             let s = usize::from(t.wrapping_add(step)) & (SLOTS - 1);
             // 0 where no hit with n > 0: adding k · 0 = +0 leaves w (≥ +0) as skipping it would.
-            w += k * self.sources[s];
-            let mut c = self.counts[s];
+            let (n, mut c) = self.slots[s];
+            w += k * n;
             if c == UNREAD {
                 c = !map.observed_count(self.key(s)).to_bits();
-                self.counts[s] = c;
+                self.slots[s].1 = c;
             }
             k_sum += k * f32::from_bits(!c);
         }
@@ -105,38 +104,30 @@ impl Window {
     }
 
     /// Centre the window on `hit` (the hits arrive in key order, `hit` among them): move it along z when
-    /// the step is shorter than the window, rebuild it otherwise; then place the hits of the new planes.
+    /// the step is shorter than the window, renew all its planes otherwise; then place the hits of the
+    /// planes that came in.
     pub(super) fn move_to(&mut self, hits: &[(VoxelKey, f32)], hit: VoxelKey) {
         let dz = self
             .centre
             .filter(|c| (c.x, c.y) == (hit.x, hit.y))
             .and_then(|c| u32::try_from(hit.z.wrapping_sub(c.z)).ok())
             .filter(|&dz| dz < 5);
-        let fresh = match dz {
-            Some(dz) => dz as i32,
-            None => {
-                self.sources = [0.0; SLOTS];
-                self.counts = [UNREAD; SLOTS];
-                self.occupied = [0; 8];
-                5
-            }
-        };
+        // A step to another row, or too far along z, brings in a whole window of planes. The 3 planes of
+        // the ring outside the window are never read.
+        let fresh = dz.map_or(5, |dz| dz as i32);
         self.centre = Some(hit);
         let top = hit.z.wrapping_add(R);
-        if dz.is_some() {
-            // The planes that come in: clear what the planes 8 below left there.
-            for p in 0..fresh {
-                let z = top.wrapping_sub(p) & 7;
-                let base = z as usize * 32;
-                if let Some(s) = self.sources.get_mut(base..base + ROWS) {
-                    s.fill(0.0);
-                }
-                if let Some(c) = self.counts.get_mut(base..base + ROWS) {
-                    c.fill(UNREAD);
-                }
-                if let Some(o) = self.occupied.get_mut(z as usize) {
-                    *o = 0;
-                }
+        // The planes that come in: clear what the planes 8 below left there.
+        for p in 0..fresh {
+            // Keeps this loop rolled (flash; see `view_score`).
+            core::hint::black_box(());
+            let z = top.wrapping_sub(p) & 7;
+            let base = z as usize * 32;
+            if let Some(s) = self.slots.get_mut(base..base + ROWS) {
+                s.fill((0.0, UNREAD));
+            }
+            if let Some(o) = self.occupied.get_mut(z as usize) {
+                *o = 0;
             }
         }
         let lowest = top.wrapping_sub(fresh - 1);
@@ -156,7 +147,7 @@ impl Window {
             }
             while let Some(&(k, n)) = hits.get(*next).filter(|h| h.0 <= to) {
                 if n > 0.0 {
-                    self.sources[((k.z & 7) as usize * 32 + row) & (SLOTS - 1)] = n;
+                    self.slots[((k.z & 7) as usize * 32 + row) & (SLOTS - 1)].0 = n;
                     self.occupied[(k.z & 7) as usize] |= 1 << row;
                 }
                 *next += 1;
@@ -179,7 +170,8 @@ impl Window {
             while bits != 0 {
                 let row = bits.trailing_zeros() as i32;
                 bits &= bits - 1;
-                f(x_major(row / 5 - R, row % 5 - R, dz));
+                // x_major(dx, dy, dz) = 5 · row + dz + 2: the row is (dx + 2) · 5 + dy + 2.
+                f((5 * row + dz + R) as usize);
             }
         }
     }
