@@ -372,3 +372,37 @@ fn residency_numbers_never_repeat_past_16_bits() {
     };
     assert!(revisited > 1_000, "the sweep back must re-allocate voxels");
 }
+
+/// A hot voxel the window left behind (its eviction refused) is still refused as outside the window,
+/// whether it is the previous point's voxel or one the map finds without its index; once the sink takes
+/// it, it leaves, and points there stay refused.
+#[test]
+fn a_stranded_hot_voxel_refuses_points() {
+    let mut m = boxed::<64>(1.0);
+    let mut sink = Collect {
+        refuse: true,
+        ..Collect::default()
+    };
+    let y = [0.5f32; D];
+    let (a, b) = ([0.05, 0.05, 0.05], [0.25, 0.05, 0.05]);
+    for _ in 0..3 {
+        m.add_point(a, &y, &mut sink).unwrap();
+        m.add_point(b, &y, &mut sink).unwrap();
+    }
+    let before = m.get(VoxelKey::new(0, 0, 0)).unwrap();
+    // 5 m away: both voxels are outside the 1 m window, and the sink refuses them.
+    m.move_window([5.0, 0.0, 0.0], &mut sink);
+    let outside = m.rejections().outside_window;
+    // `b` was the previous point's voxel, `a` is found as a recent hot voxel: both refused.
+    assert!(m.add_point(b, &y, &mut sink).is_err());
+    assert!(m.add_point(a, &y, &mut sink).is_err());
+    assert_eq!(m.rejections().outside_window, outside + 2);
+    assert_eq!(m.get(VoxelKey::new(0, 0, 0)).unwrap(), before);
+    // The sink takes them at the next move: gone, and still refused.
+    sink.refuse = false;
+    m.move_window([5.0, 0.0, 0.0], &mut sink);
+    assert!(m.get(VoxelKey::new(0, 0, 0)).is_none());
+    assert!(m.add_point(a, &y, &mut sink).is_err());
+    assert_eq!(m.rejections().outside_window, outside + 3);
+    assert_eq!(sink.points, 6.0);
+}

@@ -468,27 +468,33 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         key: VoxelKey,
         sink: &mut S,
     ) -> Result<usize, Rejection> {
-        if self.lut.offsets().is_empty() {
-            // Not configured (`EMPTY`): no room for anything.
-            return Err(Rejection::NoRoom);
-        }
-        if !self.in_window(key) {
-            return Err(Rejection::OutsideWindow);
-        }
-        if let Some(e) = self.hot.get(self.last_hot) {
-            if self.last_hot < self.hot_len && e.key == key {
-                return Ok(self.last_hot);
-            }
-        }
-        // A voxel holds at most one hot entry, so an entry in use that holds `key` is the one the index
-        // would lead to (its slot's `hot`): the same answer without the lookup.
+        // The previous point's entry, else the recent-hot hint. A voxel holds at most one hot entry, so an
+        // entry in use that holds `key` is the one the index would lead to (its slot's `hot`): the same
+        // answer without the lookup.
         let tile = hot_tile(key);
-        if let Some(&h) = self.recent_hot.get(tile) {
-            let h = usize::from(h);
-            if h < self.hot_len && self.hot.get(h).is_some_and(|e| e.key == key) {
-                self.last_hot = h;
-                return Ok(h);
+        let held = |h: usize| h < self.hot_len && self.hot.get(h).is_some_and(|e| e.key == key);
+        let hot = if held(self.last_hot) {
+            Some(self.last_hot)
+        } else {
+            self.recent_hot
+                .get(tile)
+                .map(|&h| usize::from(h))
+                .filter(|&h| held(h))
+        };
+        // A hot voxel is held by the map (so it is configured), and every held voxel lies inside the window
+        // unless the last move left one outside (`stranded`): then no window test is needed.
+        if hot.is_none() || self.stranded {
+            if self.lut.offsets().is_empty() {
+                // Not configured (`EMPTY`): no room for anything.
+                return Err(Rejection::NoRoom);
             }
+            if !self.in_window(key) {
+                return Err(Rejection::OutsideWindow);
+            }
+        }
+        if let Some(h) = hot {
+            self.last_hot = h;
+            return Ok(h);
         }
         let h = match self.find(key) {
             Some((_, s)) => match self.slots.get(s).map_or(0, |slot| slot.hot) {

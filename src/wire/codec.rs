@@ -178,9 +178,7 @@ impl SummaryCodec {
         if !self.is_rice() {
             return Ok(self.code_len_for(dim, count));
         }
-        let lead = usize::from(self.lead);
-        let mean = super::rice::bands_len(codes, lead, dim.saturating_sub(lead))?;
-        Ok(mean + self.scatter_len(count))
+        Ok(rice_end::<0>(self, dim, count, codes, 0)?.div_ceil(8))
     }
 
     /// Bytes of the scatter of a summary of `count` points (none for one point).
@@ -379,13 +377,29 @@ pub fn encode_codes_as<const D: usize>(
     Ok(len)
 }
 
-/// [`encode_codes_as`] of a Rice session, its steps chosen by `policy` (the study compares policies).
+/// [`encode_codes_as`] of a Rice session, its steps chosen by `policy` (the study compares policies):
+/// one bit stream from bit 0 of `out`, padded to a whole byte. Returns the bytes written.
 pub fn encode_rice<const D: usize>(
     codec: SummaryCodec,
     policy: super::rice::Policy,
     stats: &ObsStats<D>,
     count: u32,
     out: &mut [u8],
+) -> Result<usize, WireError> {
+    out.fill(0);
+    Ok(encode_rice_at(codec, policy, stats, count, out, 0)?.div_ceil(8))
+}
+
+/// A Rice session's codes — mean (steps, bands) then scatter (n ≥ 2: its largest entry's code, 8 bits,
+/// and a 4-bit code per block) — as bits of `out` from bit `start` on (the bits from there on are 0).
+/// Returns the bit after them.
+pub(crate) fn encode_rice_at<const D: usize>(
+    codec: SummaryCodec,
+    policy: super::rice::Policy,
+    stats: &ObsStats<D>,
+    count: u32,
+    out: &mut [u8],
+    start: usize,
 ) -> Result<usize, WireError> {
     codec.validate(D)?;
     let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
@@ -397,23 +411,116 @@ pub fn encode_rice<const D: usize>(
     let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
     rotate(lead_band, lead_tmp);
     rotate(rest_band, rest_tmp);
-    let cap = super::rice::cap(D, lead);
-    let mean = super::rice::encode_bands(
+    let mut w = super::rice::BitWriter { out, bit: start };
+    super::rice::encode_bands(
         policy,
         [lead_band, rest_band],
         (norm, count),
-        cap,
-        out,
+        super::rice::cap(D, lead),
+        &mut w,
         |c| log_value(c, SCALE_OFFSET),
         |x| log_code_up(x, SCALE_OFFSET),
-    )?;
-    let scatter = codec.scatter_len(count);
-    let s = out
-        .get_mut(mean..mean + scatter)
-        .ok_or(WireError::BufferFull)?;
-    s.fill(0);
-    encode_scatter::<D>(blocks, &stats.scatter, s);
-    Ok(mean + scatter)
+    );
+    if count >= 2 {
+        // The packed scatter bytes (block 2i in the low nibble of byte i), as 8 + 4·B bits.
+        let mut s = [0u8; 33];
+        let len = codec.scatter_len(count).min(s.len());
+        encode_scatter::<D>(blocks, &stats.scatter, s.get_mut(..len).unwrap_or_default());
+        w.put(u32::from(s[0]), 8);
+        for b in 0..blocks.get() {
+            w.put(
+                u32::from(s.get(1 + b / 2).copied().unwrap_or(0) >> (4 * (b % 2))),
+                4,
+            );
+        }
+    }
+    w.bytes()?;
+    Ok(w.bit)
+}
+
+/// Decode a Rice session's codes from `bytes`, bit `start` on, into statistics of weight `count` (codes
+/// sized for `n` points); with `D` = 0 only parses. Returns them, the bit after the codes and the
+/// ceilings (a step code or the scatter's code at 255).
+fn decode_rice<const D: usize>(
+    codec: SummaryCodec,
+    dim: usize,
+    (n, count): (u32, f32),
+    bytes: &[u8],
+    start: usize,
+) -> Result<(ObsStats<D>, usize, super::Ceiling), WireError> {
+    let lead = usize::from(codec.lead).min(dim);
+    let mut r = super::rice::BitReader { bytes, bit: start };
+    let mut t = [0.0f32; D];
+    let mut tmp = [0.0f32; D];
+    let steps = {
+        let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
+        let bands = if D == 0 {
+            [None, None]
+        } else {
+            [Some(lead_band), Some(rest_band)]
+        };
+        super::rice::decode_bands(&mut r, [lead, dim - lead], bands, n, |c| {
+            log_value(c, SCALE_OFFSET)
+        })?
+    };
+    let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
+    let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
+    rotate(lead_band, lead_tmp);
+    rotate(rest_band, rest_tmp);
+    let mut scatter = [0.0f32; D];
+    let mut psi_code = 0;
+    if n >= 2 {
+        psi_code = r.get(8)? as u8;
+        let psi_max = log_value(psi_code, PSI_OFFSET);
+        let blocks =
+            NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
+        for b in 0..blocks.get() {
+            let c = r.get(4)? as i32;
+            if psi_max > 0.0 {
+                let v = psi_max * f32math::pow2_steps(-c, BLOCK_STEPS_PER_OCTAVE);
+                for p in scatter
+                    .get_mut(block_range(D, blocks, b))
+                    .unwrap_or_default()
+                {
+                    *p = v;
+                }
+            }
+        }
+    }
+    let ceiling = super::Ceiling {
+        mean_scale: steps.contains(&u8::MAX),
+        psi: psi_code == u8::MAX,
+    };
+    let obs = ObsStats {
+        count,
+        mean: t,
+        scatter,
+    };
+    Ok((obs, r.bit, ceiling))
+}
+
+/// The bit after a Rice session's codes of a summary of `count` points starting at bit `start` of
+/// `bytes` (read from them).
+pub(crate) fn rice_end<const D: usize>(
+    codec: SummaryCodec,
+    dim: usize,
+    count: u32,
+    bytes: &[u8],
+    start: usize,
+) -> Result<usize, WireError> {
+    decode_rice::<0>(codec, dim, (count, 0.0), bytes, start).map(|(_, end, _)| end)
+}
+
+/// A Rice session's summary codes at bit `start` of `bytes`, sized for `n` points, as statistics of
+/// weight `count`: them, the bit after the codes, and the ceilings.
+pub(crate) fn decode_rice_at<const D: usize>(
+    codec: SummaryCodec,
+    (n, count): (u32, f32),
+    bytes: &[u8],
+    start: usize,
+) -> Result<(ObsStats<D>, usize, super::Ceiling), WireError> {
+    codec.validate(D)?;
+    decode_rice::<D>(codec, D, (n, count), bytes, start)
 }
 
 /// Write the scatter (largest entry, block means) into `out` (zeroed; empty for a one-point summary).
@@ -481,13 +588,7 @@ pub fn decode_codes_as<const D: usize>(
     let lead = usize::from(codec.lead);
     let mut at = 0;
     if codec.is_rice() {
-        let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
-        at = super::rice::decode_bands(bytes, [&mut *lead_band, &mut *rest_band], |c| {
-            log_value(c, SCALE_OFFSET)
-        })?;
-        let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
-        rotate(lead_band, lead_tmp);
-        rotate(rest_band, rest_tmp);
+        return decode_rice_at(codec, (n, count), bytes, 0).map(|(obs, _, _)| obs);
     }
     for (band, bits) in [
         (0..lead, codec.lead_bits_for(n)),
@@ -537,12 +638,14 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
     if codec.is_rice() {
         // Rounding to the nearest multiple of the step: half a step per component (a sender coarsens
         // its steps rather than clamp a value).
+        let mut r = super::rice::BitReader {
+            bytes: codes,
+            bit: 0,
+        };
+        let steps = super::rice::read_steps(&mut r, lead > 0, count).unwrap_or([0; 2]);
         let mut sq = 0.0;
-        for (code, len) in codes
-            .iter()
-            .zip([lead, dim - lead].into_iter().filter(|&l| l > 0))
-        {
-            let e = log_value(*code, SCALE_OFFSET) / 2.0;
+        for (&code, len) in steps.iter().zip([lead, dim - lead]) {
+            let e = log_value(code, SCALE_OFFSET) / 2.0;
             sq += len as f32 * e * e;
         }
         return libm::sqrtf(sq);

@@ -13,7 +13,9 @@
 //! Everything else (frame header, session configuration, link statistics) is plain postcard with serde.
 //! The format is written down below; `tests` check the code against it. Submodules: [`messages`] (frame
 //! header, session configuration, link statistics, the message enum: postcard), [`summary`] (a voxel
-//! summary's bytes) and [`codec`] (its quantized codes).
+//! summary's bytes), [`codec`] (its quantized codes) and [`rice`] (a *Rice session*'s summaries: one bit
+//! stream of variable-length codes each, announced by a byte after the session message; feature
+//! `rice-codes`).
 //!
 #![doc = include_str!("../wire_spec.md")]
 
@@ -31,8 +33,8 @@ pub use messages::{
     VoxelBatch, NO_FEATURE_SPACE,
 };
 pub use summary::{
-    decode_summary, encode_rice_head, encode_stamped_head, encode_summary, encode_summary_head,
-    Ceiling, DeltaBase, Summary, SummaryIter,
+    decode_summary, encode_rice_head, encode_rice_summary, encode_stamped_head, encode_summary,
+    encode_summary_head, Ceiling, DeltaBase, Summary, SummaryIter,
 };
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.

@@ -53,10 +53,8 @@ fn rice_summaries_round_trip_within_their_bound_and_take_the_bytes_they_say() {
             assert_eq!(codec.codes_len(64, s.count as u32, &codes).unwrap(), n);
             let key = VoxelKey::new(i as i32, -(i as i32), 3);
             let id = (key, 1 + i as u32 / 3, i % 2 == 0);
-            let h =
-                encode_rice_head(&mut base, id, s.count as u32, None, &mut frame[at..]).unwrap();
-            frame[at + h..at + h + n].copy_from_slice(&codes[..n]);
-            at += h + n;
+            let w = (s.count as u32, None);
+            at += encode_rice_summary(codec, &mut base, id, w, s, &mut frame[at..]).unwrap();
         }
         let batch = VoxelBatch {
             count: sent.len() as u16,
@@ -101,7 +99,7 @@ fn rice_codes_are_smaller_than_packed_codes_of_the_same_error() {
 }
 
 #[test]
-fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_step_bytes() {
+fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_steps() {
     let mut s = sample(9, 64.0);
     s.mean[0] = 5.0e4;
     s.mean[40] = -3.0e-6;
@@ -123,12 +121,16 @@ fn extreme_means_fit_the_most_a_summary_takes_and_zero_means_take_only_their_ste
         mean: [0.0; 64],
         scatter: [0.0; 64],
     };
+    // The lead step byte 0, then the rest step's residual: 0 − the prediction (0 − 5), 7 bits.
     assert_eq!(encode_codes(RICE, &zero, &mut codes).unwrap(), 2);
-    assert_eq!(&codes[..2], &[0, 0]);
+    assert_eq!(codes[0], 0);
     assert_eq!(
         decode_codes::<64>(RICE, 1.0, &codes[..2]).unwrap().mean,
         [0.0; 64]
     );
+    let one_band = SummaryCodec { lead: 0, ..RICE };
+    assert_eq!(encode_codes(one_band, &zero, &mut codes).unwrap(), 1);
+    assert_eq!(codes[0], 0);
 }
 
 #[test]
@@ -204,7 +206,8 @@ fn a_session_says_it_rice_codes_and_packed_sessions_keep_their_bytes() {
 fn a_rice_head_is_a_few_bits_per_field_and_round_trips_stamps() {
     let mut out = [0u8; 32];
     let mut base = DeltaBase::default();
-    // Neighbouring keys, same residency, one point: 1 + 3 + 1 + 3 (final) + 3 bits → 2 bytes.
+    // Neighbouring keys, same residency, one point: dx 1 (3 bits), dy and dz 0 (1 each), final (1),
+    // residency delta 0 (1), count 1 (1): 8 bits.
     encode_rice_head(
         &mut base,
         (VoxelKey::new(0, 1, 0), 0, true),
@@ -213,39 +216,33 @@ fn a_rice_head_is_a_few_bits_per_field_and_round_trips_stamps() {
         &mut out,
     )
     .unwrap();
-    let n = encode_rice_head(
-        &mut base,
-        (VoxelKey::new(1, 1, 0), 0, true),
-        1,
-        None,
-        &mut out,
-    )
-    .unwrap();
-    assert_eq!(n, 2);
-    // A stamped head: count 0, the tick, the weight's bits; then its codes.
+    let id = (VoxelKey::new(1, 1, 0), 0, true);
+    assert_eq!(
+        encode_rice_head(&mut base, id, 1, None, &mut out).unwrap(),
+        8
+    );
+    // A stamped summary: count 0, the tick, the weight's bits; its codes in the same stream.
     let codec = SummaryCodec { lead: 0, ..RICE };
     let s = sample(5, 2.5);
     let mut base = DeltaBase::default();
-    let h = encode_rice_head(
+    let mut frame = [0u8; 256];
+    let id = (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false);
+    let n = encode_rice_summary(
+        codec,
         &mut base,
-        (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false),
-        0,
-        Some((123_456, 2.5)),
-        &mut out,
+        id,
+        (0, Some((123_456, 2.5))),
+        &s,
+        &mut frame,
     )
     .unwrap();
-    let mut frame = [0u8; 256];
-    frame[..h].copy_from_slice(&out[..h]);
-    let c = encode_codes_as(codec, &s, stamped_class(2.5).unwrap(), &mut frame[h..]).unwrap();
     let (mut base, mut at) = (DeltaBase::default(), 0);
-    let got = decode_summary::<64>(codec, &mut base, &frame[..h + c], &mut at).unwrap();
-    assert_eq!(at, h + c);
+    let got = decode_summary::<64>(codec, &mut base, &frame[..n], &mut at).unwrap();
+    assert_eq!(at, n);
     assert_eq!(got.time, Some(123_456));
     assert_eq!(got.obs.count, 2.5);
-    assert_eq!(
-        (got.key, got.residency, got.is_final),
-        (VoxelKey::new(-7, 1 << 20, 3), u32::MAX, false)
-    );
+    assert_eq!((got.key, got.residency, got.is_final), id);
+    let (h, c) = (0, n);
     // Cut anywhere: refused.
     for cut in 0..h + c {
         let (mut base, mut at) = (DeltaBase::default(), 0);

@@ -3,7 +3,7 @@
 //! instead: a count of 0, then the tick of the voxel's last change and its weight n (f32, exact), the
 //! statistics being as of that tick (`wire_spec.md`, the clock rule).
 
-use super::codec::{decode_codes, decode_codes_as, stamped_class, SummaryCodec, MAX_COUNT};
+use super::codec::{decode_codes_as, decode_rice_at, stamped_class, SummaryCodec, MAX_COUNT};
 use super::{VoxelBatch, WireError};
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
@@ -153,10 +153,11 @@ pub fn encode_stamped_head(
     Ok(at)
 }
 
-/// Write a summary's head in a Rice session ([`SummaryCodec::rice`]): the fields of
-/// [`encode_summary_head`] (or, with `stamp` = (tick, weight), of [`encode_stamped_head`]: count 0, the
-/// tick, the weight's 32 bits) as Exp-Golomb codes in one bit stream, padded with 0 bits to a whole byte.
-/// Returns the bytes written and advances `base`.
+/// Write a summary's head in a Rice session ([`SummaryCodec::rice`]) as the start of its bit stream
+/// (`out` is zeroed first): the key deltas as Exp-Golomb codes, the final flag (1 bit), the residency
+/// delta, the count (0 and 1 swapped), and, with `stamp` = (tick, weight), count 0, the tick and the
+/// weight's 32 bits. The codes follow in the same stream ([`encode_rice`](super::encode_rice)). Returns
+/// the bits written and advances `base`.
 pub fn encode_rice_head(
     base: &mut DeltaBase,
     (key, residency, is_final): (VoxelKey, u32, bool),
@@ -169,19 +170,44 @@ pub fn encode_rice_head(
     for (k, b) in key.as_array().iter().zip(base.key.as_array()) {
         w.exp_golomb(u64::from(zigzag(k.wrapping_sub(b))));
     }
-    let dres = u64::from(zigzag(residency.wrapping_sub(base.residency) as i32));
-    w.exp_golomb(dres << 1 | u64::from(is_final));
+    w.put(u32::from(is_final), 1);
+    w.exp_golomb(u64::from(zigzag(
+        residency.wrapping_sub(base.residency) as i32
+    )));
     match stamp {
-        None => w.exp_golomb(u64::from(count)),
+        None => w.exp_golomb(rice_count(u64::from(count))),
         Some((time, n)) => {
-            w.exp_golomb(0);
+            w.exp_golomb(rice_count(0));
             w.exp_golomb(u64::from(time));
             w.put(n.to_bits(), 32);
         }
     }
-    let len = w.bytes()?;
+    w.bytes()?;
     *base = DeltaBase { key, residency };
-    Ok(len)
+    Ok(w.bit)
+}
+
+/// Write one whole summary of a Rice session: [`encode_rice_head`], then `stats`' codes in the same bit
+/// stream (steps by the default policy, sized for `count` points: a stamped summary's class). Returns the
+/// bytes written and advances `base`.
+pub fn encode_rice_summary<const D: usize>(
+    codec: SummaryCodec,
+    base: &mut DeltaBase,
+    id: (VoxelKey, u32, bool),
+    (count, stamp): (u32, Option<(u32, f32)>),
+    stats: &ObsStats<D>,
+    out: &mut [u8],
+) -> Result<usize, WireError> {
+    let mut trial = *base;
+    let head = encode_rice_head(&mut trial, id, count, stamp, out)?;
+    let class = match stamp {
+        Some((_, n)) => stamped_class(n).ok_or(WireError::BadCount)?,
+        None => count,
+    };
+    let policy = super::rice::Policy::DEFAULT;
+    let end = super::codec::encode_rice_at(codec, policy, stats, class, out, head)?;
+    *base = trial;
+    Ok(end.div_ceil(8))
 }
 
 /// A summary head's fields as they are read: varints, or (Rice session) Exp-Golomb codes in a bit stream.
@@ -207,14 +233,6 @@ impl Fields<'_> {
                 Ok([n[0], n[1], n[2], n[3]])
             }
             Self::Bits(r) => Ok(r.get(32)?.to_le_bytes()),
-        }
-    }
-
-    /// Where the head ends (a bit stream's last byte whole).
-    fn end(&self, at: usize) -> usize {
-        match self {
-            Self::Varints => at,
-            Self::Bits(r) => at + r.bytes(),
         }
     }
 }
@@ -261,41 +279,53 @@ pub fn decode_summary<const D: usize>(
     if !key.in_range() {
         return Err(WireError::BadKey);
     }
-    let rf = f.int(bytes, at, 5)?;
+    let rf = match &mut f {
+        // Rice: the final flag as one bit, then the residency delta.
+        Fields::Bits(r) => {
+            let is_final = u64::from(r.get(1)?);
+            r.exp_golomb()? << 1 | is_final
+        }
+        Fields::Varints => f.int(bytes, at, 5)?,
+    };
     let z = u32::try_from(rf >> 1).map_err(|_| WireError::Malformed)?;
     let residency = base.residency.wrapping_add(unzigzag(z) as u32);
     let is_final = rf & 1 == 1;
-    let count = f.int(bytes, at, 4)?;
+    let count = match &mut f {
+        Fields::Bits(r) => rice_count(r.exp_golomb()?),
+        Fields::Varints => f.int(bytes, at, 4)?,
+    };
     let stamp = if count == 0 {
         let time = u32::try_from(f.int(bytes, at, 5)?).map_err(|_| WireError::Malformed)?;
         Some((time, f32::from_le_bytes(f.raw4(bytes, at)?)))
     } else {
         None
     };
-    *at = f.end(*at);
-    let (count, obs, codes, time) = if let Some((time, n)) = stamp {
+    let (class, weight, time) = match stamp {
         // Stamped (forgetting): the tick, the weight n, codes sized for its class.
-        let class = stamped_class(n).ok_or(WireError::BadCount)?;
-        let codes = take_codes::<D>(codec, class, bytes, at)?;
-        let obs = decode_codes_as::<D>(codec, class, n, codes)?;
-        (class, obs, codes, Some(time))
+        Some((time, n)) => (stamped_class(n).ok_or(WireError::BadCount)?, n, Some(time)),
+        None if count > u64::from(MAX_COUNT) => return Err(WireError::BadCount),
+        None => (count as u32, count as f32, None),
+    };
+    let (obs, at_ceiling) = if let Fields::Bits(r) = &f {
+        // Rice: the codes follow the head in the same bit stream.
+        let from = bytes.get(*at..).unwrap_or_default();
+        let (obs, end, ceiling) = decode_rice_at::<D>(codec, (class, weight), from, r.bit)?;
+        *at += end.div_ceil(8);
+        (obs, ceiling)
     } else {
-        if count > u64::from(MAX_COUNT) {
-            return Err(WireError::BadCount);
-        }
-        let codes = take_codes::<D>(codec, count as u32, bytes, at)?;
-        let obs = decode_codes::<D>(codec, count as f32, codes)?;
-        (count as u32, obs, codes, None)
-    };
-    let psi_at = codes.len() - codec.scatter_len(count).min(codes.len());
-    let rest_at = match (codec.is_rice(), codec.lead) {
-        (_, 0) => 0,
-        (true, _) => 1,
-        (false, _) => codec.lead_len_for(count),
-    };
-    let at_ceiling = Ceiling {
-        mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
-        psi: codes.get(psi_at) == Some(&u8::MAX),
+        let codes = take_codes::<D>(codec, class, bytes, at)?;
+        let obs = decode_codes_as::<D>(codec, class, weight, codes)?;
+        let psi_at = codes.len() - codec.scatter_len(class).min(codes.len());
+        let rest_at = if codec.lead == 0 {
+            0
+        } else {
+            codec.lead_len_for(class)
+        };
+        let ceiling = Ceiling {
+            mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
+            psi: codes.get(psi_at) == Some(&u8::MAX),
+        };
+        (obs, ceiling)
     };
     *base = DeltaBase { key, residency };
     Ok(Summary {
@@ -306,6 +336,16 @@ pub fn decode_summary<const D: usize>(
         at_ceiling,
         time,
     })
+}
+
+/// A Rice head's count field: 0 and 1 swapped (one point, the most frequent, takes one bit; 0 =
+/// stamped), its own inverse.
+const fn rice_count(v: u64) -> u64 {
+    match v {
+        0 => 1,
+        1 => 0,
+        v => v,
+    }
 }
 
 impl<'a> VoxelBatch<'a> {

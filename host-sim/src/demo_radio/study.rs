@@ -77,9 +77,20 @@ pub fn table(
             rest_per_doubling,
             rest_single,
         };
+        // LATENTBKI_RICE_LEAD: another lead band length for the Rice rows.
+        let lead = std::env::var("LATENTBKI_RICE_LEAD")
+            .ok()
+            .and_then(|l| l.parse().ok())
+            .unwrap_or(super::CODEC.lead);
         rows.push(row(
             config,
-            (super::CODEC, Some(policy)),
+            (
+                SummaryCodec {
+                    lead,
+                    ..super::CODEC
+                },
+                Some(policy),
+            ),
             robot,
             robot_posteriors,
             reference,

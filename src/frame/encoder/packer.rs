@@ -77,11 +77,20 @@ pub(super) fn append<const D: usize>(
     codec: SummaryCodec,
     (key, residency, weight, codes): (VoxelKey, u32, Weight, Codes<'_, D>),
 ) -> bool {
+    if codec.is_rice() {
+        return append_rice(
+            out,
+            used,
+            base,
+            limit,
+            codec,
+            (key, residency, weight, codes),
+        );
+    }
     let mut trial = *base;
     let evicted = matches!(codes, Codes::Queued(_));
     let count = weight.class();
     let Some(Ok(h)) = out.get_mut(*used..).map(|o| match weight {
-        _ if codec.is_rice() => rice_head(&mut trial, (key, residency, evicted), weight, o),
         Weight::Count(c) => encode_summary_head(&mut trial, key, residency, evicted, c, o),
         #[cfg(feature = "forgetting")]
         Weight::Stamped { n, time } => {
@@ -134,4 +143,64 @@ fn rice_head(
             crate::wire::encode_rice_head(base, id, 0, Some((time, n)), out)
         }
     }
+}
+
+/// [`append`] in a Rice session: head and codes are one bit stream, so queued codes (from bit 0 of their
+/// entry) are shifted in right after the head's last bit, and live codes encoded there.
+fn append_rice<const D: usize>(
+    out: &mut [u8],
+    used: &mut usize,
+    base: &mut DeltaBase,
+    limit: usize,
+    codec: SummaryCodec,
+    (key, residency, weight, codes): (VoxelKey, u32, Weight, Codes<'_, D>),
+) -> bool {
+    let mut trial = *base;
+    let evicted = matches!(codes, Codes::Queued(_));
+    let Some(o) = out.get_mut(*used..) else {
+        return false;
+    };
+    let Ok(head) = rice_head(&mut trial, (key, residency, evicted), weight, o) else {
+        return false;
+    };
+    let end = match codes {
+        Codes::Queued(c) => {
+            let Ok(bits) = crate::wire::codec::rice_end::<0>(codec, D, weight.class(), c, 0) else {
+                return false;
+            };
+            // Shift the codes' bytes by the head's bits within its last byte.
+            let (at, shift) = (head / 8, head % 8);
+            let Some(dst) = o.get_mut(at..at + (head % 8 + bits).div_ceil(8)) else {
+                return false;
+            };
+            for (i, &b) in c.iter().take(bits.div_ceil(8)).enumerate() {
+                let wide = u16::from(b) << shift;
+                if let Some(d) = dst.get_mut(i) {
+                    *d |= wide as u8;
+                }
+                if let Some(d) = dst.get_mut(i + 1) {
+                    *d |= (wide >> 8) as u8;
+                }
+            }
+            head + bits
+        }
+        Codes::Live(obs) => {
+            let policy = crate::wire::rice::Policy::DEFAULT;
+            match crate::wire::codec::encode_rice_at(codec, policy, obs, weight.class(), o, head) {
+                Ok(end) => end,
+                Err(_) => return false,
+            }
+        }
+    };
+    let len = end.div_ceil(8);
+    if wire_len(VOXEL_FRAME_OVERHEAD + *used + len) > limit {
+        // Leave the frame's tail as it was (zero) for the next summary.
+        if let Some(o) = out.get_mut(*used..) {
+            o.fill(0);
+        }
+        return false;
+    }
+    *used += len;
+    *base = trial;
+    true
 }
