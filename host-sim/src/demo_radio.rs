@@ -81,12 +81,13 @@ pub struct LinkArgs {
     #[arg(long, default_value_t = 16 * 1024)]
     pub resend_bytes: u32,
     /// Ticks without acknowledgement before a frame is re-sent (a frame shown missing by a later one's
-    /// acknowledgement waits half of it). 5: longer than a round trip at the usual delays, short against
-    /// an outage; 8 covers the longest delay both ways (`--max-delay-ms` 300), so fewer delayed frames
-    /// are re-sent (13.43 instead of 13.55 B per point), but lost ones are repaired later and the window
-    /// stalls more (294 ticks instead of 263).
-    #[arg(long, default_value_t = 5)]
-    pub resend_ticks: u32,
+    /// acknowledgement waits half of it). Default: the longest round trip, 2 × `--max-delay-ms`, in
+    /// ticks, plus 2 (8 at 300 ms). A shorter timeout re-sends frames that were only delayed and drains
+    /// the window sooner, so voxels leave the map and come back: at 5 the demo printed 13.79–14.22 B per
+    /// point over link seeds 7–13, at 8 13.44–13.63 (docs/numbers.md); the price is a later repair of
+    /// real losses (the run drained in 339 ticks instead of 265).
+    #[arg(long)]
+    pub resend_ticks: Option<u32>,
     /// Seed of the link's faults.
     #[arg(long, default_value_t = 7)]
     pub link_seed: u64,
@@ -97,6 +98,19 @@ pub struct LinkArgs {
 }
 
 impl LinkArgs {
+    /// The re-send timeout in ticks: `--resend-ticks`, or the longest round trip (both directions at
+    /// `--max-delay-ms`) in ticks plus 2, so that a frame only delayed is not re-sent.
+    pub fn resend_timeout_ticks(&self) -> u32 {
+        self.resend_ticks
+            .unwrap_or_else(|| {
+                let round_trip = (2 * self.max_delay_ms).div_ceil(TICK_MS);
+                u32::try_from(round_trip)
+                    .unwrap_or(u32::MAX)
+                    .saturating_add(2)
+            })
+            .max(1)
+    }
+
     /// The faults of one direction.
     pub fn faults(&self) -> anyhow::Result<Faults> {
         anyhow::ensure!(
@@ -452,7 +466,7 @@ impl Radio for DemoRadioLink {
         let resend = if r.args.no_back_channel {
             Resend::OFF
         } else {
-            Resend::new(r.args.resend_bytes, r.args.resend_ticks.max(1))
+            Resend::new(r.args.resend_bytes, r.args.resend_timeout_ticks())
         };
         Setup {
             link: setup.link.with_resend(resend),
