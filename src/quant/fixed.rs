@@ -214,11 +214,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
 
         // ---- pass 1, per dimension: the merged mean in code steps (MEAN_FRAC fraction bits) and the merged
         // scatter. With x = Σc − n₁m₀ the merged mean is m₀ + x/n and the new points' mean is m₀ + x/n₁
-        // (d = x/n₁). Divisions by reciprocals (2³²/n): (2³² − 1)/k, a 32-bit division (a 64-bit one links
+        // (d = x/n₁). Divisions by reciprocals (2³²/n): (2³² − 1)/k, a 32-bit division or, on v6-M, a table
+        // entry for k < 256 (a 64-bit division links
         // ≈ 1 KB of library code on a 32-bit MCU). Scatters in units of c²·2^g, g chosen so that
         // n·127²·1.25 < 2³¹; each ends as the f32 bit pattern of its value (what the minifloat codes are cut
         // from). One pass: the scatter needs only its own dimension's d (no array of them).
-        let recip = |k: u32| -> u32 { u32::MAX / k.max(1) };
         let (rn, rn1) = (recip(n), recip(n1));
         let g = (32 - lz(n) as i32) - 16;
         // n₀n₁/n = n₁ − n₁²/n, with 8 fraction bits (n₁²·2⁸ < 2²⁴), and 2³²/n₁: 32-bit divisions.

@@ -109,6 +109,30 @@ pub(super) fn mul32s(a: i32, b: u32) -> i64 {
     }
 }
 
+/// (2³² − 1)/k (k = 0 read as 1): a reciprocal for dividing by multiplying. v6-M has no divide instruction
+/// (`__aeabi_uidiv` runs ≈ 200 instructions), so there the counts below 256 — a cooling's new points n₁,
+/// a young voxel's n — are read from a table (1 KB of flash).
+#[inline(always)]
+pub(super) fn recip(k: u32) -> u32 {
+    #[cfg(target_abi = "eabi")]
+    if let Some(&r) = RECIPS.get(k as usize) {
+        return r;
+    }
+    u32::MAX / k.max(1)
+}
+
+/// (2³² − 1)/k for k < 256 (k = 0 as 1), built at compile time.
+#[cfg(any(target_abi = "eabi", test))]
+pub(super) const RECIPS: [u32; 256] = {
+    let mut t = [u32::MAX; 256];
+    let mut k = 2;
+    while k < 256 {
+        t[k] = u32::MAX / k as u32;
+        k += 1;
+    }
+    t
+};
+
 inline_with_fpu! {
 /// `p · 2^sh`, rounded to nearest when shifting right, saturating at 2³⁰ when shifting left. (32-bit: a
 /// 64-bit shift is long on a 32-bit MCU.)

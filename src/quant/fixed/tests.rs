@@ -30,6 +30,16 @@ impl Rng {
 }
 
 #[test]
+fn the_reciprocal_table_is_the_division() {
+    for k in 0..300u32 {
+        assert_eq!(recip(k), u32::MAX / k.max(1), "{k}");
+        if let Some(&r) = RECIPS.get(k as usize) {
+            assert_eq!(r, u32::MAX / k.max(1), "{k}");
+        }
+    }
+}
+
+#[test]
 fn the_halves_multiply_is_the_64_bit_product() {
     let mut rng = Rng(0x1357_9BDF);
     let edges = [0, 1, 0xFFFF, 0x1_0000, 0x8000_0000, u32::MAX - 1, u32::MAX];
