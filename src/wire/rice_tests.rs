@@ -17,13 +17,7 @@ const RICE: SummaryCodec = SummaryCodec {
 
 /// Deterministic statistics: a few large leading components, small equal noise in the rest.
 fn sample(seed: u32, count: f32) -> ObsStats<64> {
-    let mut s = seed.wrapping_mul(2_654_435_761).max(1);
-    let mut next = move || {
-        s ^= s << 13;
-        s ^= s >> 17;
-        s ^= s << 5;
-        (s as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
+    let mut next = super::tests::uniform(seed);
     ObsStats {
         count,
         mean: core::array::from_fn(|i| next() * if i < 5 { 0.5 } else { 0.05 }),

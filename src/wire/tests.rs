@@ -6,15 +6,20 @@ use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use core::num::NonZeroUsize;
 
-fn sample<const D: usize>(seed: u32) -> ObsStats<D> {
-    // A small deterministic generator (xorshift) so the test needs no RNG crate.
+/// Uniform numbers in [−1, 1] from a small deterministic generator (xorshift), so the wire's tests need no
+/// RNG crate.
+pub(super) fn uniform(seed: u32) -> impl FnMut() -> f32 {
     let mut s = seed.wrapping_mul(2_654_435_761).max(1);
-    let mut next = move || {
+    move || {
         s ^= s << 13;
         s ^= s >> 17;
         s ^= s << 5;
         (s as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
+    }
+}
+
+fn sample<const D: usize>(seed: u32) -> ObsStats<D> {
+    let mut next = uniform(seed);
     ObsStats {
         count: (3.0 + 10.0 * libm::fabsf(next())) as u32 as f32,
         mean: core::array::from_fn(|i| next() / (1.0 + i as f32 * 0.1)),
