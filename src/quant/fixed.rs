@@ -215,8 +215,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // ---- pass 1, per dimension: the merged mean in code steps (MEAN_FRAC fraction bits) and the merged
         // scatter. With x = Σc − n₁m₀ the merged mean is m₀ + x/n and the new points' mean is m₀ + x/n₁
         // (d = x/n₁). Divisions by reciprocals (2³²/n): (2³² − 1)/k, a 32-bit division or, on v6-M, a table
-        // entry for k < 256 (a 64-bit division links
-        // ≈ 1 KB of library code on a 32-bit MCU). Scatters in units of c²·2^g, g chosen so that
+        // entry for k < 256 (a 64-bit division links ≈ 1 KB of library code on a 32-bit MCU). Scatters in units of c²·2^g, g chosen so that
         // n·127²·1.25 < 2³¹; each ends as the f32 bit pattern of its value (what the minifloat codes are cut
         // from). One pass: the scatter needs only its own dimension's d (no array of them).
         let (rn, rn1) = (recip(n), recip(n1));
