@@ -6,6 +6,16 @@ use latentbki::frame::{Feed, FrameDecoder};
 use latentbki::wire::{parse_body, Message, SummaryCodec};
 use libfuzzer_sys::fuzz_target;
 
+/// A lead band of 8 components at 3 bits, the rest at 3 bits growing with the count.
+const LEAD_BAND: SummaryCodec = SummaryCodec {
+    mean_bits: 3,
+    psi_blocks: 2,
+    mean_bits_growth: 3,
+    lead: 8,
+    lead_bits: 3,
+    rice: false,
+};
+
 fuzz_target!(|data: &[u8]| {
     let Some((&chunk, bytes)) = data.split_first() else {
         return;
@@ -36,23 +46,11 @@ fuzz_target!(|data: &[u8]| {
                                 rice: true,
                                 ..SummaryCodec::DEFAULT
                             },
-                            // The demo's: a lead band.
+                            // A lead band, packed (the demo's before Rice codes) and Rice-coded.
+                            LEAD_BAND,
                             SummaryCodec {
-                                mean_bits: 3,
-                                psi_blocks: 2,
-                                mean_bits_growth: 3,
-                                lead: 8,
-                                lead_bits: 3,
-                                rice: false,
-                            },
-                            // The demo's since Rice codes.
-                            SummaryCodec {
-                                mean_bits: 3,
-                                psi_blocks: 2,
-                                mean_bits_growth: 3,
-                                lead: 8,
-                                lead_bits: 3,
                                 rice: true,
+                                ..LEAD_BAND
                             },
                         ] {
                             for s in batch.iter::<64>(codec) {
