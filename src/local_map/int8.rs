@@ -136,7 +136,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         if !code_in_range(codes) {
             return Err(Rejection::CodeOutOfRange);
         }
-        let h = self.hot_entry(key, sink)?;
+        let h = self.hot_entry(key, sink, true)?;
         self.hot_to_now(h);
         if self.hot_is_full(h) {
             self.restart_hot(h);
