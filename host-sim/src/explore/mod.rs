@@ -22,6 +22,7 @@
 //! voxel the map cannot answer is wrong.
 
 mod command;
+mod tour;
 mod truth;
 pub mod world;
 
@@ -100,6 +101,7 @@ struct Robot<'a> {
     frame: u32,
     travelled: f32,
     utility_offset: f32,
+    horizon: usize,
 }
 
 impl Robot<'_> {
@@ -168,6 +170,7 @@ impl Robot<'_> {
             Planner::Random => {
                 Some(options[(self.rng.next_u64() % options.len() as u64) as usize].0)
             }
+            Planner::InformationGain if self.horizon > 1 => self.choose_tour(&options, left),
             Planner::InformationGain => {
                 best_by(&|(_, fp, d)| self.score(fp) / (d + self.utility_offset))
             }
@@ -196,6 +199,8 @@ pub struct Explorer {
     pub budget: f32,
     /// Information gain's utility: score / (path + this many metres).
     pub utility_offset: f32,
+    /// Information gain plans tours of this many views (1: the best single view).
+    pub horizon: usize,
 }
 
 /// Run one explorer until its distance budget is spent; the accuracy after every frame (those along the
@@ -212,6 +217,7 @@ pub fn run(
         seed,
         budget,
         utility_offset,
+        horizon,
     } = *explorer;
     let mut robot = Robot {
         world,
@@ -225,6 +231,7 @@ pub fn run(
         frame: 0,
         travelled: 0.0,
         utility_offset,
+        horizon,
     };
     let mut here = world
         .nearest_free(world.scene.room_centre(0))
