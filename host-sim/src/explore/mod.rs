@@ -15,7 +15,8 @@
 //! **Nearest frontier** goes to the nearest view of which at least a fifth of the surface voxels it would
 //! hit have no point within the kernel's reach yet (the classic frontier: the edge of the known map).
 //! **Random** takes any candidate within the remaining budget. **Information gain** takes the candidate of
-//! highest score / (path + 2.5 m).
+//! highest score / (path + 2.5 m), or with `--horizon N` the first stop of the best tour of N views
+//! (`tour.rs`).
 //!
 //! Accuracy and mIoU are those of the tables, on a fixed set of ground-truth voxels: every surface voxel the
 //! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
