@@ -2,13 +2,16 @@
 # Firmware measurements on QEMU mps2-an386 (Cortex-M4F), reproducible (and, through measure-targets.sh, the
 # same for thumbv6m on mps2-an385 and riscv32imac on riscv32 virt; rows appended to the table):
 #   flash and RAM   llvm-size of the firmware ELF, compared with the golden file
-#                   boards/qemu-mps2-an386/expected/firmware.size (BLESS=1 rewrites it)
+#                   boards/qemu-mps2-an386/expected/firmware.size (BLESS=1 rewrites it); every mode fails
+#                   when a measured build's flash exceeds 64 KiB (boards/flash-limit.sh; FLASH_LIMIT=bytes
+#                   overrides the limit, e.g. to see the failure: FLASH_LIMIT=60000 boards/measure.sh --size)
 #   stack           high-water marks printed by the firmware (cortex-m-rt paint-stack)
 #   instructions    exact executed instructions per input point, per sensor pattern (depth frames, 8×8 ToF, 2D
 #                   LiDAR) and feature type (f32, int8), f = 1 and f = 3 (latentbki-selftest SELF_TEST): the
 #                   insncount QEMU plugin (built here with cc) counts between the markers around the map's work
 # Usage: boards/measure.sh            everything, prints a Markdown table
-#        boards/measure.sh --size     only build and compare the size (CI)
+#        boards/measure.sh --size     only build, compare the size and check the flash limit of every
+#                                     measured build: this one, the forgetting build, thumbv6m, riscv32imac (CI)
 #        boards/measure.sh --panic-never   the link-time proof that no panic is reachable (CI): builds with
 #                                     `--features panic-never`, runs it and checks its UART bytes equal the
 #                                     reporting build's
@@ -25,11 +28,21 @@ export RUSTFLAGS="--remap-path-prefix=$ROOT=/latentbki"
 HOST=$(rustc -vV | sed -n 's/^host: //p')
 LLVM_BIN="$(rustc --print sysroot)/lib/rustlib/$HOST/bin"
 [ -x "$LLVM_BIN/llvm-size" ] || rustup component add llvm-tools
+# shellcheck source=flash-limit.sh
+. ../flash-limit.sh
 ELF="$CARGO_TARGET_DIR/thumbv7em-none-eabihf/release/latentbki-qemu-mps2-an386"
 OUT="$CARGO_TARGET_DIR/measure"
 mkdir -p "$OUT"
 
 cargo build --release --quiet
+
+# The forgetting build (issue 21's cost rows): its own target dir, never the golden firmware. Prints its ELF.
+build_forgetting() {
+  CARGO_TARGET_DIR="$CARGO_TARGET_DIR/forgetting" \
+    cargo build --release --quiet --features forgetting --message-format=json-render-diagnostics |
+    python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])'
+}
+FORGETTING_NAME="thumbv7em forgetting build (qemu-mps2-an386 --features forgetting)"
 
 # ---- panic-never: the panic handler calls an undefined symbol, so this build links only if no panic is
 # reachable from the firmware's entry. Same program otherwise: its UART stream must equal the normal build's.
@@ -59,9 +72,7 @@ fi
 # frame), plus one candidate view scored after each frame, built apart (`--features forgetting`, its own
 # target dir: never the golden firmware), against this build's rows. Prints its rows of the table.
 if [ "${1:-}" = --forgetting ]; then
-  FG_ELF=$(CARGO_TARGET_DIR="$CARGO_TARGET_DIR/forgetting" \
-    cargo build --release --quiet --features forgetting --message-format=json-render-diagnostics |
-    python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])')
+  FG_ELF=$(build_forgetting)
   OUT="$OUT/insncount.so" plugin/build.sh
   for run in off on; do
     elf=$ELF; [ $run = on ] && elf=$FG_ELF
@@ -75,8 +86,7 @@ if [ "${1:-}" = --forgetting ]; then
       exit 1
     fi
   done
-  "$LLVM_BIN/llvm-size" -A -d "$FG_ELF" | awk '$1==".vector_table"{vt=$2} $1==".text"{t=$2} $1==".rodata"{ro=$2}
-    $1==".data"{d=$2} END{print vt+t+ro+d}' > "$OUT/flash-forgetting.txt"
+  flash_bytes "$FG_ELF" > "$OUT/flash-forgetting.txt"
   python3 - "$OUT" <<'PY'
 import re, sys
 out = sys.argv[1]
@@ -114,10 +124,16 @@ print(f"| instructions to score one candidate view of 64 voxels (`Mapper::view_s
       f"| median {v[len(v) // 2]}, {v[0]}–{v[-1]} ({len(v)} views) | |")
 print(f"| flash, the forgetting build (forgetting and view scoring linked) | {flash / 1024:.1f} KiB ({flash} B) | ≤ 64 KB |")
 PY
+  # The rows are printed first; an image over the limit then fails the run.
+  check_flash_limit "$FORGETTING_NAME" "$FG_ELF" >/dev/null
   exit 0
 fi
 
-# ---- size: allocated sections only (debug sections and paths never enter the golden file)
+# ---- size: the flash limit, then the golden file (allocated sections only: debug sections and paths never
+# enter it)
+# Every build is checked before the run fails (`failed`), so one run names each build over the limit.
+failed=0
+check_flash_limit "thumbv7em (qemu-mps2-an386)" "$ELF" || failed=1
 "$LLVM_BIN/llvm-size" -A -d "$ELF" | awk '
   $1==".vector_table"{vt=$2} $1==".text"{t=$2} $1==".rodata"{ro=$2}
   $1==".data"{d=$2} $1==".bss"{b=$2} $1==".uninit"{u=$2}
@@ -135,14 +151,17 @@ elif ! diff -u expected/firmware.size "$OUT/firmware.size"; then
   delta=$((now_flash - want_flash))
   if [ "$now_ram" != "$want_ram" ] || [ "${delta#-}" -gt 64 ]; then
     echo "firmware size changed (above: - expected, + now). If intended: BLESS=1 boards/measure.sh --size" >&2
-    exit 1
+    failed=1
+  else
+    echo "flash differs from the golden file by $delta B (within the 64 B a checkout path moves; RAM equal)"
   fi
-  echo "flash differs from the golden file by $delta B (within the 64 B a checkout path moves; RAM equal)"
 fi
-echo "size ok: $(cat "$OUT/firmware.size")"
+[ "$failed" = 1 ] || echo "size ok: $(cat "$OUT/firmware.size")"
 if [ "${1:-}" = --size ]; then
-  bash ../measure-targets.sh --size   # thumbv6m and riscv32imac: flash within budget
-  exit 0
+  FG_ELF=$(build_forgetting)
+  check_flash_limit "$FORGETTING_NAME" "$FG_ELF" || failed=1
+  bash ../measure-targets.sh --size || failed=1   # thumbv6m and riscv32imac
+  exit "$failed"
 fi
 
 # ---- run under the instruction-counting plugin
@@ -223,3 +242,4 @@ if [ "${PROFILE:-0}" = 1 ]; then
   python3 ../profile.py "$OUT/firmware.dis" "$OUT/insn.log"
   bash ../measure-targets.sh --profile
 fi
+exit "$failed"

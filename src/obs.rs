@@ -27,6 +27,9 @@ use crate::kernel::KernelLut;
 use crate::key::VoxelKey;
 use crate::stats::{combine, update_dim_point, VoxelStats};
 
+mod code_range;
+pub use code_range::code_in_range;
+
 /// What was observed in one voxel: the (weighted) point count n, the mean m and the diagonal scatter
 /// S = Σ(y − m)² of the features. Also the kernel-weighted moments of a neighbourhood (K, ȳ, S̄).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -245,21 +248,6 @@ impl<const D: usize> CodeSums<D> {
 pub(crate) fn scatter_numerator(n: u32, sum: i32, squares: u32) -> u32 {
     n.wrapping_mul(squares)
         .wrapping_sub(sum.wrapping_mul(sum) as u32)
-}
-
-/// Whether every code is within ±[`CODE_MAX`] (−128 is not). Four codes at a time: a byte is 0x80 exactly
-/// when its top bit is set and its low seven are zero; (b & 0x7F) + 0x7F sets the top bit exactly when
-/// they are not (at most 0xFE: no carry into the next byte). Four operations a word, the mask once.
-#[inline]
-pub fn code_in_range<const D: usize>(codes: &[i8; D]) -> bool {
-    let chunks = codes.chunks_exact(4);
-    let tail_ok = chunks.remainder().iter().all(|&c| c != i8::MIN);
-    let mut bad = 0u32;
-    for c in chunks {
-        let w = u32::from_le_bytes([c[0] as u8, c[1] as u8, c[2] as u8, c[3] as u8]);
-        bad |= w & !((w & 0x7F7F_7F7F) + 0x7F7F_7F7F);
-    }
-    bad & 0x8080_8080 == 0 && tail_ok
 }
 
 // Defined here rather than in `stats`, so that `stats` (the posterior) does not depend on `obs` (what

@@ -125,6 +125,59 @@ fn live_voxels_follow_evicted_ones_and_report_a_prefix() {
     assert!(r.bytes <= budget);
 }
 
+/// A Rice session's head grows with the key and residency deltas (Exp-Golomb codes): a summary of keys
+/// far apart is longer than a packed one can be, and still fits the smallest frame the encoder accepts,
+/// so it is sent rather than stuck in the queue.
+#[cfg(feature = "rice-codes")]
+#[test]
+fn a_rice_summary_of_far_keys_fits_the_smallest_frame_the_encoder_accepts() {
+    const RICE: SummaryCodec = SummaryCodec {
+        rice: true,
+        psi_blocks: 1,
+        ..SummaryCodec::DEFAULT
+    };
+    const SMALLEST: usize = wire_len(encoder::VOXEL_FRAME_OVERHEAD + RICE.max_summary_len(16));
+    let config = SessionConfig::new(&MapConfig::default(), 16, RICE, 0);
+    let settings = EncoderSettings::new(1, 2);
+    assert!(FrameEncoder::<16, 1024, { SMALLEST - 1 }>::new(config, settings).is_err());
+    let mut enc = FrameEncoder::<16, 1024, SMALLEST>::new(config, settings).unwrap();
+    let far = (1 << 30) - 1;
+    let key = VoxelKey::new(-far, far, -far);
+    let s = ObsStats::<16> {
+        count: (1 << 24) as f32,
+        mean: core::array::from_fn(|d| {
+            [0.3, -7.0, 0.001, 2.5, -0.02, 9.0, -3.3, 0.7][d % 8] * d as f32
+        }),
+        scatter: [1.5; 16],
+    };
+    // The residency delta from 0 is i32::MIN: the longest code of all.
+    enc.evict(live(key, &s, 1 << 31)).unwrap();
+    let mut out = Buf {
+        data: [0; 8192],
+        len: 0,
+    };
+    enc.tick(&mut out, 10_000, core::iter::empty()).unwrap();
+    assert_eq!(enc.queued(), 0, "the summary did not fit a frame");
+    let mut dec = FrameDecoder::<SMALLEST>::new();
+    let mut input = &out.data[..out.len];
+    let mut got = heapless::Vec::<(VoxelKey, u32, usize), 2>::new();
+    while let Feed::Frame { body, rest } = dec.feed(input) {
+        if let (_, Message::Voxels(b)) = parse_body(body).unwrap() {
+            for v in b.iter::<16>(RICE) {
+                let v = v.unwrap();
+                got.push((v.key, v.residency, b.summaries.len())).unwrap();
+            }
+        }
+        input = rest;
+    }
+    // Longer than a packed head and the codes could be.
+    let packed_max = 3 * 5 + 5 + 4 + RICE.code_len(16);
+    assert!(
+        matches!(got[..], [(k, r, len)] if k == key && r == 1 << 31 && len > packed_max),
+        "{got:?}, packed at most {packed_max}"
+    );
+}
+
 #[test]
 fn live_voxels_the_decoder_would_refuse_are_skipped_not_sent() {
     // n = 0 (nothing observed) and NaN among good live voxels: a sent one would make the

@@ -2,22 +2,28 @@
 //! map voxel its 27 targets can reach (±2 per axis), where each sits, and how the window moves on.
 //!
 //! Why a ring along z: consecutive hits are usually neighbours along z (the key's last field), so the next
-//! hit's window is this one moved by a voxel or two. A slot holds (z mod 8, row): moving along z keeps
+//! hit's window is this one moved by a voxel or two. A slot holds (z mod 16, row): moving along z keeps
 //! every map count already read where it is (a lookup costs far more than the arithmetic) and only clears
 //! the planes that come in; the hits of those planes are found by one cursor per (x, y) row, which only
-//! moves forward because the hits are sorted. A step to another row rebuilds the window.
+//! moves forward because the hits are sorted. Why 16 planes, and rows shifted: a view's next run of hits
+//! is usually the next y (a wall, a depth image's column), whose window overlaps the previous run's by 4
+//! of its 5 lines in y over the same z. The ring keeps the planes of the whole run (up to 16), and a step
+//! to the next y moves every plane's rows by one line: each map count is then read once per view, not
+//! once per run that reaches it. Any other step to another row rebuilds the window.
 //!
-//! Slot of the voxel at (dx, dy) from the hit, at absolute z: `(z mod 8) · 32 + row`, row = 5·(dx+2) +
+//! Slot of the voxel at (dx, dy) from the hit, at absolute z: `(z mod 16) · 32 + row`, row = 5·(dx+2) +
 //! (dy+2) < 25. A move by (dx, dy, dz) from one voxel to another is then `+ dz · 32 + 5·dx + dy` modulo
-//! 256: the row part never carries into the z part, and z wraps in the top three bits.
+//! 512: the row part never carries into the z part, and z wraps in the top four bits.
 
 use crate::key::VoxelKey;
 use crate::obs::ObsLookup;
 
 /// Offsets of an f = 3 filter: the targets of one hit (≤ 32, one bit each).
 pub(super) const MAX_TARGETS: usize = 27;
-/// Slots of the ring: 8 z planes of 32 (25 used) rows. A power of two: a masked index is in bounds.
-pub(super) const SLOTS: usize = 256;
+/// Slots of the ring: 16 z planes of 32 (25 used) rows. A power of two: a masked index is in bounds.
+pub(super) const SLOTS: usize = 512;
+/// Planes of the ring.
+const PLANES: i32 = 16;
 /// Rows of a plane: (dx, dy) ∈ [−2, 2]².
 const ROWS: usize = 25;
 /// Reach of the window: ±2 voxels per axis.
@@ -26,9 +32,12 @@ const R: i32 = 2;
 /// all bits set (never a count the map returns as such: one it did would be read again, not misread).
 const UNREAD: u32 = 0;
 
-/// The slot step of an offset (see the module docs), as a wrapping byte.
-pub(super) fn step(o: [i8; 3]) -> u8 {
-    (32 * i32::from(o[2]) + 5 * i32::from(o[0]) + i32::from(o[1])) as u8
+/// Rows of the line dy = +2 (row % 5 = 4), which a step to the next y brings in.
+const LAST_LINE: u32 = 1 << 4 | 1 << 9 | 1 << 14 | 1 << 19 | 1 << 24;
+
+/// The slot step of an offset (see the module docs), wrapping modulo [`SLOTS`].
+pub(super) fn step(o: [i8; 3]) -> u16 {
+    (32 * i32::from(o[2]) + 5 * i32::from(o[0]) + i32::from(o[1])) as u16
 }
 
 /// Position of the offset (dx, dy, dz), each in −2..=2, in the x-major order of the 5³ window (its
@@ -43,34 +52,39 @@ pub(super) struct Window {
     /// bits, inverted; [`UNREAD`] where not read yet). Side by side: one address for both, and a plane is
     /// cleared by one memclr.
     slots: [(f32, u32); SLOTS],
-    /// Per plane (z mod 8): bit `row` set where a source sits.
-    occupied: [u32; 8],
-    /// Per row: the first hit above the window's top plane in that row (or beyond the row).
+    /// Per plane (z mod 16): bit `row` set where a source sits.
+    occupied: [u32; PLANES as usize],
+    /// Per row: the first hit above the highest plane held in that row (or beyond the row).
     next: [usize; ROWS],
-    centre: Option<VoxelKey>,
+    /// The hit the window is centred on.
+    centre: VoxelKey,
+    /// The absolute z of the highest plane the ring holds for the centre's rows: it holds the 16 up to it.
+    /// (Before the first hit every slot is empty, which holds for any planes: all zero, one memclr.)
+    held: i32,
 }
 
 impl Window {
     pub(super) fn new() -> Self {
         Self {
             slots: [(0.0, UNREAD); SLOTS],
-            occupied: [0; 8],
+            occupied: [0; PLANES as usize],
             next: [0; ROWS],
-            centre: None,
+            centre: VoxelKey::new(0, 0, 0),
+            held: 0,
         }
     }
 
     /// The slot of the hit the window is centred on.
-    pub(super) fn centre_slot(&self) -> u8 {
-        self.centre.map_or(0, |c| ((c.z & 7) * 32 + 12) as u8)
+    pub(super) fn centre_slot(&self) -> u16 {
+        ((self.centre.z & (PLANES - 1)) * 32 + 12) as u16
     }
 
     /// The voxel at `slot`.
     #[inline(always)]
     fn key(&self, slot: usize) -> VoxelKey {
-        let c = self.centre.unwrap_or_default();
+        let c = self.centre;
         let row = (slot % 32) as i32;
-        let dz = ((slot / 32) as i32 - (c.z & 7) + R) & 7;
+        let dz = ((slot / 32) as i32 - (c.z & (PLANES - 1)) + R) & (PLANES - 1);
         VoxelKey::new(
             c.x.wrapping_add(row / 5 - R),
             c.y.wrapping_add(row % 5 - R),
@@ -84,9 +98,9 @@ impl Window {
     pub(super) fn sums<const D: usize, M: ObsLookup<D> + ?Sized>(
         &mut self,
         map: &M,
-        steps: &[u8],
+        steps: &[u16],
         weights: &[f32],
-        t: u8,
+        t: u16,
     ) -> (f32, f32) {
         let (mut w, mut k_sum) = (0.0, 0.0);
         for (&step, &k) in steps.iter().zip(weights) {
@@ -103,34 +117,38 @@ impl Window {
         (w, k_sum)
     }
 
-    /// Centre the window on `hit` (the hits arrive in key order, `hit` among them): move it along z when
-    /// the step is shorter than the window, renew all its planes otherwise; then place the hits of the
-    /// planes that came in.
+    /// Centre the window on `hit` (the hits arrive in key order, `hit` among them): move it along z, or
+    /// to the next y (rows shifted by a line), keeping the planes held; renew them otherwise. Then place
+    /// the hits of the planes and lines that came in.
     pub(super) fn move_to(&mut self, hits: &[(VoxelKey, f32)], hit: VoxelKey) {
-        let dz = self
-            .centre
-            .filter(|c| (c.x, c.y) == (hit.x, hit.y))
-            .and_then(|c| u32::try_from(hit.z.wrapping_sub(c.z)).ok())
-            .filter(|&dz| dz < 5);
-        // A step to another row, or too far along z, brings in a whole window of planes. The 3 planes of
-        // the ring outside the window are never read.
-        let fresh = dz.map_or(5, |dz| dz as i32);
-        self.centre = Some(hit);
         let top = hit.z.wrapping_add(R);
-        // The planes that come in: clear what the planes 8 below left there.
-        for p in 0..fresh {
+        let (c, held) = (self.centre, self.held);
+        // Along z in this row, or to the next y, with the window's bottom among the planes held: those
+        // planes stay (the planes above them come in); else all 16 planes are renewed.
+        let dy = hit.y.wrapping_sub(c.y) as u32;
+        let keep =
+            c.x == hit.x && dy <= 1 && top.wrapping_sub(2 * R) >= held.wrapping_sub(PLANES - 1);
+        if keep && dy == 1 {
+            self.next_line();
+        }
+        let held = if keep { held } else { i32::MIN };
+        let mut z = held.max(top.wrapping_sub(PLANES));
+        // The planes that come in: clear what the planes 16 below left there.
+        while z < top {
             // Keeps this loop rolled (flash; see `view_score`).
             core::hint::black_box(());
-            let z = top.wrapping_sub(p) & 7;
-            let base = z as usize * 32;
-            if let Some(s) = self.slots.get_mut(base..base + ROWS) {
+            z = z.wrapping_add(1);
+            let p = (z & (PLANES - 1)) as usize;
+            if let Some(s) = self.slots.get_mut(p * 32..p * 32 + ROWS) {
                 s.fill((0.0, UNREAD));
             }
-            if let Some(o) = self.occupied.get_mut(z as usize) {
+            if let Some(o) = self.occupied.get_mut(p) {
                 *o = 0;
             }
         }
-        let lowest = top.wrapping_sub(fresh - 1);
+        self.held = held.max(top);
+        let lowest = self.held.wrapping_sub(PLANES - 1);
+        self.centre = hit;
         for (row, next) in self.next.iter_mut().enumerate() {
             let x = hit.x.wrapping_add(row as i32 / 5 - R);
             let y = hit.y.wrapping_add(row as i32 % 5 - R);
@@ -140,17 +158,40 @@ impl Window {
             if hits.get(*next).is_none_or(|h| h.0 > to) {
                 continue;
             }
-            // Rows only move forward (keys ascend): skip what lies below the new planes.
+            // Rows only move forward (keys ascend): skip what lies below the planes held.
             let from = VoxelKey::new(x, y, lowest);
             while hits.get(*next).is_some_and(|h| h.0 < from) {
                 *next += 1;
             }
             while let Some(&(k, n)) = hits.get(*next).filter(|h| h.0 <= to) {
                 if n > 0.0 {
-                    self.slots[((k.z & 7) as usize * 32 + row) & (SLOTS - 1)].0 = n;
-                    self.occupied[(k.z & 7) as usize] |= 1 << row;
+                    let p = (k.z & (PLANES - 1)) as usize;
+                    self.slots[(p * 32 + row) & (SLOTS - 1)].0 = n;
+                    self.occupied[p] |= 1 << row;
                 }
                 *next += 1;
+            }
+        }
+    }
+
+    /// A step to the next y: every plane's rows move by one line (dy − 1; the rows past the 25th are
+    /// never read), the line dy = +2 comes in empty, and its cursors continue from the line before it
+    /// (whose hits precede its).
+    #[inline(never)]
+    fn next_line(&mut self) {
+        self.slots.copy_within(1.., 0);
+        self.next.copy_within(1.., 0);
+        for (p, o) in self.occupied.iter_mut().enumerate() {
+            // Keeps this loop rolled (flash; see `view_score`).
+            core::hint::black_box(());
+            *o = *o >> 1 & !LAST_LINE;
+            let mut row = 4;
+            while row < ROWS {
+                self.slots[(p * 32 + row) & (SLOTS - 1)] = (0.0, UNREAD);
+                if p == 0 {
+                    self.next[row] = self.next[row - 1];
+                }
+                row += 5;
             }
         }
     }
@@ -158,15 +199,13 @@ impl Window {
     /// The x-major positions (see [`x_major`]) of the sources below the centre in key order: the earlier
     /// hits within ±2. Calls `f` with each.
     pub(super) fn earlier(&self, mut f: impl FnMut(usize)) {
-        let Some(c) = self.centre else {
-            return;
-        };
+        let c = self.centre;
         for dz in -R..=R {
             // Keeps this loop rolled (flash; see `view_score`).
             core::hint::black_box(());
             // Rows below the centre's (x, y) in key order; the centre's own row below it in z.
             let rows = if dz < 0 { (1 << 13) - 1 } else { (1 << 12) - 1 };
-            let mut bits = self.occupied[(c.z.wrapping_add(dz) & 7) as usize] & rows;
+            let mut bits = self.occupied[(c.z.wrapping_add(dz) & (PLANES - 1)) as usize] & rows;
             while bits != 0 {
                 let row = bits.trailing_zeros() as i32;
                 bits &= bits - 1;

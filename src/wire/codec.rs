@@ -195,8 +195,13 @@ impl SummaryCodec {
         self.code_len_for(dim, MAX_COUNT)
     }
 
-    /// Largest wire size of one summary (5-byte key deltas and residency field, 4-byte count).
+    /// Largest wire size of one summary: packed, 5-byte key deltas and residency field, a 4-byte count,
+    /// then the codes; Rice-coded, a head of at most [`super::rice::HEAD_MAX_BITS`] bits, then codes of
+    /// at most [`Self::code_len`] bytes in the same bit stream.
     pub const fn max_summary_len(self, dim: usize) -> usize {
+        if self.is_rice() {
+            return super::rice::HEAD_MAX_BITS.div_ceil(8) + self.code_len(dim);
+        }
         3 * 5 + 5 + 4 + self.code_len(dim)
     }
 }

@@ -63,6 +63,12 @@ pub(super) struct BitWriter<'a> {
 /// Longest Exp-Golomb prefix: values below 2³⁵ − 1.
 const EXP_GOLOMB_MAX_PREFIX: u32 = 34;
 
+/// Most bits of an unstamped summary's head: three key deltas and the residency delta of at most 65
+/// bits each (the Exp-Golomb code of a u32), the final flag, and the count (≤ 2²⁴: 49 bits). Keys far
+/// apart take more than a packed head's 24 bytes: frames are sized by it
+/// ([`super::SummaryCodec::max_summary_len`]). (A stamped head's time and weight are counted apart.)
+pub const HEAD_MAX_BITS: usize = 4 * 65 + 1 + 49;
+
 impl BitWriter<'_> {
     /// Exp-Golomb code of v (order 0): with w = v + 1 of b bits, b − 1 one bits, a zero bit, then the
     /// low b − 1 bits of w, least significant first. v < 2³⁵ − 1.

@@ -54,7 +54,10 @@ fn put(out: &mut [u8], at: &mut usize, bytes: &[u8]) -> Result<(), WireError> {
     Ok(())
 }
 
-/// postcard's varint: LEB128, 7 bits per byte, least significant first.
+/// postcard's varint: LEB128, 7 bits per byte, least significant first. (Out of line on Arm, where one
+/// copy for a summary head's four or five fields saves flash: 172 B on the an386, 336 B in its forgetting
+/// build, 40 B on thumbv6m; inlined on riscv32imac, where it would cost 68 B more.)
+#[cfg_attr(target_arch = "arm", inline(never))]
 pub(super) fn put_varint(out: &mut [u8], at: &mut usize, mut v: u64) -> Result<(), WireError> {
     loop {
         let byte = (v & 0x7f) as u8;

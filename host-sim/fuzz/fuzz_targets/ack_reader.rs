@@ -15,7 +15,12 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let chunk = usize::from(chunk).max(1);
-    let config = SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, NO_FEATURE_SPACE);
+    let config = SessionConfig::new(
+        &MapConfig::default(),
+        D,
+        SummaryCodec::DEFAULT,
+        NO_FEATURE_SPACE,
+    );
     let settings = EncoderSettings::new(1, 2).with_resend(Resend::new(1500, 4));
     let mut robot = FrameEncoder::<D, 3000, 256>::new(config, settings).unwrap();
     let obs = ObsStats {
@@ -24,7 +29,11 @@ fuzz_target!(|data: &[u8]| {
         scatter: [0.1; D],
     };
     for i in 0..20 {
-        let _ = robot.evict(latentbki::frame::live(VoxelKey::new(i, 0, 0), &obs, i as u32));
+        let _ = robot.evict(latentbki::frame::live(
+            VoxelKey::new(i, 0, 0),
+            &obs,
+            i as u32,
+        ));
     }
     let mut sink = [0u8; 4096];
     let mut out: &mut [u8] = &mut sink;
@@ -34,7 +43,11 @@ fuzz_target!(|data: &[u8]| {
     let mut reader = AckReader::new();
     for c in bytes.chunks(chunk) {
         reader.feed(c, 1, 2, |ack| {
-            assert_eq!((ack.robot, ack.session), (1, 2), "a foreign acknowledgement was accepted");
+            assert_eq!(
+                (ack.robot, ack.session),
+                (1, 2),
+                "a foreign acknowledgement was accepted"
+            );
             assert_eq!(ack.received & 1, 1);
             robot.acknowledge(&ack);
         });

@@ -4,11 +4,13 @@
 //! in-memory map and sessions: nothing is written from a refused frame and nothing accepted is missed.
 #![no_main]
 
-use latentbki_station::store::SqliteStore;
-use latentbki_station::BaseStation;
 use latentbki::frame::EncoderSettings;
 use latentbki::wire::{SessionConfig, SummaryCodec};
-use latentbki::{sink::Evicted, sink::EvictionSink, frame::FrameEncoder, MapConfig, obs::ObsStats, key::VoxelKey};
+use latentbki::{
+    frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
+};
+use latentbki_station::store::SqliteStore;
+use latentbki_station::BaseStation;
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 
@@ -49,7 +51,11 @@ fuzz_target!(|data: &[u8]| {
     let record = 4 + 4 * (1 + 2 * D);
     for (i, c) in voxels.chunks_exact(record).enumerate() {
         // Few distinct keys, so contributions meet in the same voxels.
-        let key = VoxelKey::new(i32::from(c[0] % 4), i32::from(c[1] % 4), i32::from(c[2] % 2));
+        let key = VoxelKey::new(
+            i32::from(c[0] % 4),
+            i32::from(c[1] % 4),
+            i32::from(c[2] % 2),
+        );
         let residency = u32::from(c[3] % 8);
         let v = &c[4..];
         // Any bits for the count (mostly not a whole number in 1..=2^24: the encoder must drop those).
@@ -88,7 +94,10 @@ fuzz_target!(|data: &[u8]| {
         base.commit(&mut store).unwrap();
     }
     let back = BaseStation::<D>::open(&mut store).unwrap();
-    assert!(back.map() == base.map(), "the database differs from the map");
+    assert!(
+        back.map() == base.map(),
+        "the database differs from the map"
+    );
     assert_eq!(back.sessions(), base.sessions());
     assert_eq!(store.integrity_check().unwrap(), "ok");
 });

@@ -4,7 +4,7 @@
 #![no_main]
 
 use latentbki::nalgebra::{Isometry3, Translation3};
-use latentbki::{packed_len, sink::Evicted, local_map::LocalMap, MapConfig, sink::SinkFull};
+use latentbki::{local_map::LocalMap, packed_len, sink::Evicted, sink::SinkFull, MapConfig};
 use libfuzzer_sys::fuzz_target;
 
 const D: usize = 4;

@@ -5,7 +5,9 @@
 
 use latentbki::frame::{EncoderSettings, Feed, FrameDecoder};
 use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec};
-use latentbki::{sink::Evicted, sink::EvictionSink, frame::FrameEncoder, MapConfig, obs::ObsStats, key::VoxelKey};
+use latentbki::{
+    frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
+};
 use libfuzzer_sys::fuzz_target;
 
 const D: usize = 8;
@@ -110,6 +112,9 @@ fuzz_target!(|data: &[u8]| {
     }
     assert_eq!(got.len(), sent.len());
     for (a, b) in got.iter().zip(&sent) {
-        assert_eq!((a.0, a.1, a.2.to_bits(), a.3), (b.0, b.1, b.2.to_bits(), b.3));
+        assert_eq!(
+            (a.0, a.1, a.2.to_bits(), a.3),
+            (b.0, b.1, b.2.to_bits(), b.3)
+        );
     }
 });

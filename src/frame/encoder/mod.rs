@@ -21,7 +21,7 @@ use crate::wire::{LinkStats, SessionConfig, SummaryCodec, WireError};
 use queue::ENTRY_HEAD;
 
 /// Largest encoded header + `Voxels` message overhead (header ≤ 19 B, tag + count + length ≤ 7 B).
-const VOXEL_FRAME_OVERHEAD: usize = 26;
+pub(super) const VOXEL_FRAME_OVERHEAD: usize = 26;
 
 /// How often the encoder repeats the session header and its link statistics.
 ///
@@ -166,6 +166,9 @@ mod scheduler;
 
 pub use queue::{live, LiveItem};
 
+/// Most bytes of a packed summary's head: 5-byte key deltas and residency field, a 4-byte count.
+const PACKED_HEAD_MAX: usize = 3 * 5 + 5 + 4;
+
 /// Largest wire size of one summary of a session (a stamped one is [`queue::STAMP_EXTRA`] longer).
 fn max_summary_len<const D: usize>(config: &SessionConfig) -> usize {
     let len = config.codec.max_summary_len(D);
@@ -285,6 +288,18 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// Largest wire size of one summary of the session.
     pub(super) fn max_summary_len(&self) -> usize {
         max_summary_len::<D>(&self.config)
+    }
+
+    /// Bytes of a summary a tick must have left to begin another frame: the largest one with a head of
+    /// at most a packed head's 24 bytes. In a Rice session only keys or residencies ~2²⁰ apart make a
+    /// longer head; such a summary waits for the next frame (a frame of `N` holds the longest,
+    /// [`Self::max_summary_len`]).
+    pub(super) fn frame_reserve(&self) -> usize {
+        let codec = self.config.codec;
+        if !codec.is_rice() {
+            return self.max_summary_len();
+        }
+        self.max_summary_len() - codec.max_summary_len(D) + PACKED_HEAD_MAX + codec.code_len(D)
     }
 
     /// End the session: queued voxels are dropped, nothing is sent and every voxel is refused until the

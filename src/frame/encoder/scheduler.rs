@@ -202,7 +202,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             self.since_stats = 0;
         }
         let mut live = live.into_iter().peekable();
-        let smallest = wire_len(VOXEL_FRAME_OVERHEAD + self.max_summary_len());
+        let smallest = wire_len(VOXEL_FRAME_OVERHEAD + self.frame_reserve());
         loop {
             let mut limit = N.min(budget.saturating_sub(report.bytes));
             if limit < smallest {

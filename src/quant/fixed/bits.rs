@@ -109,6 +109,17 @@ pub(super) fn mul32s(a: i32, b: u32) -> i64 {
     }
 }
 
+/// a · b for signed `a` and `b` (|a|, |b| < 2³¹), as [`mul32`].
+#[inline(always)]
+pub(super) fn mul32ss(a: i32, b: i32) -> i64 {
+    let p = mul32(a.unsigned_abs(), b.unsigned_abs()) as i64;
+    if (a ^ b) < 0 {
+        -p
+    } else {
+        p
+    }
+}
+
 /// (2³² − 1)/k (k = 0 read as 1): a reciprocal for dividing by multiplying. v6-M has no divide instruction
 /// (`__aeabi_uidiv` runs ≈ 200 instructions), so there the counts below 256 — a cooling's new points n₁,
 /// a young voxel's n — are read from a table (1 KB of flash).
