@@ -16,7 +16,9 @@
 #                                     `--features panic-never`, runs it and checks its UART bytes equal the
 #                                     reporting build's
 #        boards/measure.sh --forgetting   the cost of forgetting and of scoring a candidate view (issue 21):
-#                                     the rows of a build with `--features forgetting` against this one's
+#                                     the rows of a build with `--features forgetting` against this one's,
+#                                     its flash and stack high-water mark; fails when either is over its
+#                                     limit (64 KiB, 8 KiB; STACK_LIMIT=bytes overrides the stack's)
 #        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots)
 set -euo pipefail
 cd "$(dirname "$0")/qemu-mps2-an386"
@@ -43,6 +45,9 @@ build_forgetting() {
     python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])'
 }
 FORGETTING_NAME="thumbv7em forgetting build (qemu-mps2-an386 --features forgetting)"
+# The stack budget (8 KiB; STACK_LIMIT=bytes overrides it, e.g. to see the failure: STACK_LIMIT=4096
+# boards/measure.sh --forgetting): --forgetting fails when that build's high-water mark exceeds it.
+STACK_LIMIT=${STACK_LIMIT:-8192}
 
 # ---- panic-never: the panic handler calls an undefined symbol, so this build links only if no panic is
 # reachable from the firmware's entry. Same program otherwise: its UART stream must equal the normal build's.
@@ -123,10 +128,23 @@ v = sorted(views["depth_f3"])
 print(f"| instructions to score one candidate view of 64 voxels (`Mapper::view_score`), f = 3, after each depth frame "
       f"| median {v[len(v) // 2]}, {v[0]}–{v[-1]} ({len(v)} views) | |")
 print(f"| flash, the forgetting build (forgetting and view scoring linked) | {flash / 1024:.1f} KiB ({flash} B) | ≤ 64 KB |")
+# The deepest of all the run's windows, as in the reporting build's table (view scoring included).
+text = open(f"{out}/stdout-on.txt").read().splitlines()
+stack = [kv(l) for l in text if l.startswith("stack ")]
+tail = int(kv(next(l for l in text if l.startswith("memory ")))["tail_stack_high_water"])
+whole = max([int(s["setup_high_water"]) for s in stack] + [int(s["loop_high_water"]) for s in stack] + [tail])
+print(f"| stack, whole run (set-up and view scoring included), the forgetting build | {whole} B | ≤ 8 KB |")
+open(f"{out}/stack-forgetting.txt", "w").write(f"{whole}\n")
 PY
-  # The rows are printed first; an image over the limit then fails the run.
-  check_flash_limit "$FORGETTING_NAME" "$FG_ELF" >/dev/null
-  exit 0
+  # The rows are printed first; an image over a limit then fails the run (every limit checked, one line each).
+  failed=0
+  check_flash_limit "$FORGETTING_NAME" "$FG_ELF" >/dev/null || failed=1
+  stack=$(cat "$OUT/stack-forgetting.txt")
+  if [ "$stack" -gt "$STACK_LIMIT" ]; then
+    echo "stack over the limit: $FORGETTING_NAME: $stack B > $STACK_LIMIT B (by $((stack - STACK_LIMIT)) B)" >&2
+    failed=1
+  fi
+  exit "$failed"
 fi
 
 # ---- size: the flash limit, then the golden file (allocated sections only: debug sections and paths never

@@ -44,8 +44,13 @@ fn every_room_is_reachable_and_the_fast_score_is_the_maps() {
     );
 }
 
-#[test]
-fn short_runs_stay_in_budget_and_learn() {
+/// House 1's decoding, ground truth and world (seed 5's training loop).
+fn house_one() -> (
+    World,
+    host_sim::eval::experiment::Decoding,
+    Truth,
+    latentbki::MapConfig,
+) {
     let scene = IndoorScene::generate(1);
     let train = indoor::sequence(
         &IndoorScene::generate(mix_all(&[1, 0x7EA1])),
@@ -63,35 +68,57 @@ fn short_runs_stay_in_budget_and_learn() {
     .unwrap();
     let truth = Truth::from_loop(&scene, &config);
     let world = World::new(scene, &config, 3072).unwrap();
-    for planner in Planner::ALL {
-        let samples = run(
-            &world,
-            &dec,
-            &truth,
-            &config,
-            &Explorer {
-                planner,
-                seed: 1,
-                budget: 5.0,
-                utility_offset: UTILITY_OFFSET_M,
-            },
-        )
-        .unwrap();
-        assert!(
-            samples.len() >= 3,
-            "{}: {} samples",
-            planner.name(),
-            samples.len()
-        );
+    (world, dec, truth, config)
+}
+
+fn explorer(planner: Planner, horizon: usize, budget: f32) -> Explorer {
+    Explorer {
+        planner,
+        seed: 1,
+        budget,
+        utility_offset: UTILITY_OFFSET_M,
+        horizon,
+    }
+}
+
+#[test]
+fn short_runs_stay_in_budget_and_learn() {
+    let (world, dec, truth, config) = house_one();
+    let explorers = [
+        explorer(Planner::InformationGain, 1, 5.0),
+        explorer(Planner::InformationGain, 2, 5.0),
+        explorer(Planner::Random, 1, 5.0),
+        explorer(Planner::NearestFrontier, 1, 5.0),
+    ];
+    for e in &explorers {
+        let name = format!("{} (horizon {})", e.planner.name(), e.horizon);
+        let samples = run(&world, &dec, &truth, &config, e).unwrap();
+        assert!(samples.len() >= 3, "{name}: {} samples", samples.len());
         assert!(samples.windows(2).all(|w| w[0].distance <= w[1].distance));
         let last = samples.last().unwrap();
+        assert!(last.distance <= 5.0 + 1e-3, "{name}: {} m", last.distance);
+        assert!(last.accuracy > samples[0].accuracy, "{name}");
+    }
+}
+
+#[test]
+fn information_gain_single_views_and_tours_beat_random_choice() {
+    // 12 m in house 1: both information-gain planners know more of the house than random choice does.
+    let (world, dec, truth, config) = house_one();
+    let final_accuracy = |e: Explorer| {
+        run(&world, &dec, &truth, &config, &e)
+            .unwrap()
+            .last()
+            .unwrap()
+            .accuracy
+    };
+    let random = final_accuracy(explorer(Planner::Random, 1, 12.0));
+    for horizon in [1, 2] {
+        let ig = final_accuracy(explorer(Planner::InformationGain, horizon, 12.0));
         assert!(
-            last.distance <= 5.0 + 1e-3,
-            "{}: {} m",
-            planner.name(),
-            last.distance
+            ig > random + 0.05,
+            "horizon {horizon}: information gain {ig:.3}, random {random:.3}"
         );
-        assert!(last.accuracy > samples[0].accuracy, "{}", planner.name());
     }
 }
 

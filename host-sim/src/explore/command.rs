@@ -30,6 +30,9 @@ pub struct ExploreArgs {
     /// Information gain's utility is score / (path + this many metres).
     #[arg(long, default_value_t = UTILITY_OFFSET_M)]
     pub utility_offset: f32,
+    /// Information gain plans tours of this many views and drives to the first (1: the best single view).
+    #[arg(long, default_value_t = 1)]
+    pub horizon: usize,
     /// Directory for the plot (`explore.png`; `explore-<layout>.png` with `--layouts`).
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
@@ -51,6 +54,9 @@ pub fn explore(args: &ExploreArgs) -> Result<()> {
     }
     if !(args.utility_offset > 0.0 && args.utility_offset.is_finite()) {
         anyhow::bail!("--utility-offset must be a positive number of metres");
+    }
+    if !(1..=4).contains(&args.horizon) {
+        anyhow::bail!("--horizon must be 1 to 4 views");
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
@@ -99,6 +105,7 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
                             seed,
                             budget: args.budget,
                             utility_offset: args.utility_offset,
+                            horizon: args.horizon,
                         };
                         run(world, dec, truth, config, &explorer)
                     })

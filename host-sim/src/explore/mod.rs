@@ -15,13 +15,15 @@
 //! **Nearest frontier** goes to the nearest view of which at least a fifth of the surface voxels it would
 //! hit have no point within the kernel's reach yet (the classic frontier: the edge of the known map).
 //! **Random** takes any candidate within the remaining budget. **Information gain** takes the candidate of
-//! highest score / (path + 2.5 m).
+//! highest score / (path + 2.5 m), or with `--horizon N` the first stop of the best tour of N views
+//! (`tour.rs`).
 //!
 //! Accuracy and mIoU are those of the tables, on a fixed set of ground-truth voxels: every surface voxel the
 //! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
 //! voxel the map cannot answer is wrong.
 
 mod command;
+mod tour;
 mod truth;
 pub mod world;
 
@@ -100,6 +102,7 @@ struct Robot<'a> {
     frame: u32,
     travelled: f32,
     utility_offset: f32,
+    horizon: usize,
 }
 
 impl Robot<'_> {
@@ -168,6 +171,7 @@ impl Robot<'_> {
             Planner::Random => {
                 Some(options[(self.rng.next_u64() % options.len() as u64) as usize].0)
             }
+            Planner::InformationGain if self.horizon > 1 => self.choose_tour(&options, left),
             Planner::InformationGain => {
                 best_by(&|(_, fp, d)| self.score(fp) / (d + self.utility_offset))
             }
@@ -196,6 +200,8 @@ pub struct Explorer {
     pub budget: f32,
     /// Information gain's utility: score / (path + this many metres).
     pub utility_offset: f32,
+    /// Information gain plans tours of this many views (1: the best single view).
+    pub horizon: usize,
 }
 
 /// Run one explorer until its distance budget is spent; the accuracy after every frame (those along the
@@ -212,6 +218,7 @@ pub fn run(
         seed,
         budget,
         utility_offset,
+        horizon,
     } = *explorer;
     let mut robot = Robot {
         world,
@@ -225,6 +232,7 @@ pub fn run(
         frame: 0,
         travelled: 0.0,
         utility_offset,
+        horizon,
     };
     let mut here = world
         .nearest_free(world.scene.room_centre(0))
