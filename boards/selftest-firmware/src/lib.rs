@@ -106,20 +106,13 @@ const VIEW_VOXELS: usize = 64;
 
 /// Voxels the map holds: the self-test's RAM budget at this build's bytes per voxel (the forgetting build's
 /// stamps make it 124 B instead of 120: 1,189 voxels instead of 1,228).
-const CAPACITY: usize = selftest::SELF_TEST_MAP_BUDGET
-    / LocalMap::<D, 1, P, HOT_VOXELS, Clock>::BYTES_PER_VOXEL;
+const CAPACITY: usize =
+    selftest::SELF_TEST_MAP_BUDGET / LocalMap::<D, 1, P, HOT_VOXELS, Clock>::BYTES_PER_VOXEL;
 const _: () = assert!(cfg!(feature = "forgetting") || CAPACITY == SELF_TEST_CAPACITY);
 
 type Map = LocalMap<D, CAPACITY, P, HOT_VOXELS, Clock>;
-type Robot = Mapper<
-    D,
-    CAPACITY,
-    P,
-    SELF_TEST_QUEUE_BYTES,
-    SELF_TEST_FRAME_BYTES,
-    HOT_VOXELS,
-    Clock,
->;
+type Robot =
+    Mapper<D, CAPACITY, P, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES, HOT_VOXELS, Clock>;
 
 /// The map and the encoder (≈ 170 KiB) live in a static (`.bss`), reconfigured in place for each
 /// scenario; never on the stack.

@@ -98,7 +98,8 @@ fn main() -> ! {
         for z in (0..ZONES).filter(|&z| frame.valid(z)) {
             let r = f32::from(frame.distance_mm[z]) * 1e-3;
             let ray = zone_ray(z);
-            let _ = batch.add_point([ray[0] * r, ray[1] * r, ray[2] * r], &FEATURE); // refusals are counted
+            let _ = batch.add_point([ray[0] * r, ray[1] * r, ray[2] * r], &FEATURE);
+            // refusals are counted
         }
         // 921,600 Bd at 15 frames/s ≈ 6 kB per frame.
         let _ = mapper.tick(&mut uart, 6000);

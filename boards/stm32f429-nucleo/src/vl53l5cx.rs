@@ -30,7 +30,6 @@ pub fn zone_ray(z: usize) -> [f32; 3] {
     [x * inv, y * inv, inv]
 }
 
-
 /// One frame: distance in millimetres and ULD target status per zone (5 and 9 = valid).
 #[derive(Clone, Copy, Debug)]
 pub struct ZoneFrame {
