@@ -378,6 +378,18 @@ impl embedded_io::ReadReady for Pipe {
     }
 }
 
+/// Frame a message body as the encoder does — CRC-32 appended, COBS-encoded between two `0x00` — so a test
+/// can put any body, valid or damaged, behind a valid CRC and reach the layers above the frame.
+pub fn frame_body(body: &[u8]) -> Vec<u8> {
+    let mut b = body.to_vec();
+    b.extend_from_slice(&latentbki::wire::CRC32.checksum(body).to_le_bytes());
+    let mut out = vec![0u8; b.len() + b.len() / 254 + 2];
+    let n = cobs::encode(&b, &mut out[1..]);
+    out.truncate(n + 1);
+    out.push(0);
+    out
+}
+
 /// Split an encoder's output into its frames (each `0x00 … 0x00`).
 pub fn split_frames(bytes: &[u8]) -> Vec<&[u8]> {
     let mut frames = Vec::new();
@@ -437,6 +449,18 @@ mod tests {
             split_frames(&[0, 1, 2, 0, 0, 3, 0]),
             vec![&[0u8, 1, 2, 0][..], &[0, 3, 0][..]]
         );
+    }
+
+    #[test]
+    fn a_framed_body_is_one_frame_holding_the_body_and_its_crc() {
+        let body: Vec<u8> = (0..600u32).map(|i| (i % 7) as u8).collect();
+        let framed = frame_body(&body);
+        assert_eq!(split_frames(&framed), vec![&framed[..]]);
+        let mut plain = vec![0u8; framed.len()];
+        let n = cobs::decode(&framed[1..framed.len() - 1], &mut plain).unwrap();
+        assert_eq!(&plain[..n - 4], &body[..]);
+        let crc = latentbki::wire::CRC32.checksum(&body).to_le_bytes();
+        assert_eq!(&plain[n - 4..n], &crc[..]);
     }
 
     #[test]

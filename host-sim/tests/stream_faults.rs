@@ -6,9 +6,9 @@
 mod stream_common;
 
 use host_sim::base_station::BaseStation;
-use host_sim::link::{split_frames, ByteLog, Faults, FaultyLink, SplitMix};
+use host_sim::link::{frame_body, split_frames, ByteLog, Faults, FaultyLink, SplitMix};
 use latentbki::frame::{live, EncoderSettings};
-use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec, CRC32, PROTOCOL_VERSION};
+use latentbki::wire::{parse_body, Message, SessionConfig, SummaryCodec, PROTOCOL_VERSION};
 use latentbki::{
     frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::Evicted, sink::EvictionSink, MapConfig,
 };
@@ -195,18 +195,6 @@ fn faulty_links_never_corrupt_the_map_and_count_every_loss() {
     }
 }
 
-/// Re-frame a body (valid CRC) so that only the layer above the frame can refuse it.
-fn frame_of(body: &[u8]) -> Vec<u8> {
-    let mut b = body.to_vec();
-    b.extend_from_slice(&CRC32.checksum(body).to_le_bytes());
-    let mut out = vec![0u8; b.len() + b.len() / 254 + 2];
-    let n = cobs::encode(&b, &mut out[1..]);
-    out.truncate(n + 1);
-    out.insert(0, 0);
-    out.push(0);
-    out
-}
-
 #[test]
 fn wrong_version_and_wrong_config_are_refused_and_counted() {
     let (_, good) = stream(1, config(), 200);
@@ -237,7 +225,7 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
     let (seq, body) = good.iter().next().unwrap();
     let mut v2 = body.clone();
     v2[0] = PROTOCOL_VERSION + 1;
-    base.receive(&frame_of(&v2));
+    base.receive(&frame_body(&v2));
     assert_eq!(base.stats().rejected.version, 1);
     // A summary with a point count of 0 in a frame with a valid CRC: the whole frame is refused.
     let voxel_body = good
@@ -271,14 +259,14 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
         summaries: &summaries[..len],
     });
     let n = latentbki::wire::encode_body(&h, &msg, &mut out).unwrap();
-    base.receive(&frame_of(&out[..n]));
+    base.receive(&frame_body(&out[..n]));
     assert_eq!(base.stats().rejected.invalid_voxel, 1);
     assert!(base.map().unwrap().is_empty());
     let _ = seq;
     // An adopting base station takes the first valid session header's configuration, refuses others.
     let mut adopting = BaseStation::<D>::adopting();
     for b in good.values() {
-        adopting.receive(&frame_of(b));
+        adopting.receive(&frame_body(b));
     }
     for f in &foreign_frames {
         adopting.receive(f);

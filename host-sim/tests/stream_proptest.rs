@@ -5,12 +5,11 @@
 //! decoders without a panic.
 
 use host_sim::base_station::BaseStation;
-use host_sim::link::{split_frames, ByteLog, Faults, FaultyLink};
+use host_sim::link::{frame_body, split_frames, ByteLog, Faults, FaultyLink};
 use latentbki::frame::{live, EncoderSettings, Feed, FrameDecoder};
 use latentbki::wire::{
     decode_summary, encode_body, encode_codes, encode_rice_summary, encode_summary,
     mean_error_bound, parse_body, DeltaBase, Message, SessionConfig, SummaryCodec, VoxelBatch,
-    CRC32,
 };
 use latentbki::{frame::FrameEncoder, key::VoxelKey, obs::ObsStats, sink::EvictionSink, MapConfig};
 use proptest::prelude::*;
@@ -140,18 +139,6 @@ fn mean_within_bound(
         bound
     );
     Ok(())
-}
-
-/// Re-frame a body with a valid CRC, so that only the layers above the frame can refuse it.
-fn frame_of(body: &[u8]) -> Vec<u8> {
-    let mut b = body.to_vec();
-    b.extend_from_slice(&CRC32.checksum(body).to_le_bytes());
-    let mut out = vec![0u8; b.len() + b.len() / 254 + 2];
-    let n = cobs::encode(&b, &mut out[1..]);
-    out.truncate(n + 1);
-    out.insert(0, 0);
-    out.push(0);
-    out
 }
 
 proptest! {
@@ -343,7 +330,7 @@ proptest! {
         let message = Message::Voxels(VoxelBatch { count, summaries: &bad });
         let n = encode_body(&header, &message, &mut body).unwrap();
         let mut base = BaseStation::<D>::new(session(codec)).unwrap();
-        base.receive(&frame_of(&body[..n]));
+        base.receive(&frame_body(&body[..n]));
         let s = base.stats();
         let r = s.rejected;
         let refused = r.malformed + r.invalid_voxel + r.wrong_config + r.version;

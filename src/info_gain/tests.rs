@@ -112,12 +112,7 @@ fn view_score_sums_each_reached_voxel_once() {
 #[test]
 fn view_score_equals_the_definition_on_random_maps_and_views() {
     use crate::config::{KernelMode, Prior};
-    // A small LCG: the same cases every run.
-    let mut state = 0x2545_f491_u32;
-    let mut next = move |m: u32| {
-        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-        (state >> 8) % m
-    };
+    let mut next = lcg(0x2545_f491_u32);
     let prior = Prior {
         lambda: 0.0,
         mean: 0.0,
@@ -177,11 +172,7 @@ fn view_score_equals_the_definition_on_random_maps_and_views() {
 fn view_score_equals_the_definition_on_walls_and_runs() {
     // Views like a camera's: planes and runs of neighbouring voxels (the window moves along z by 1 to 7
     // voxels, and to the next row), with gaps and some n ≤ 0.
-    let mut state = 0x9e37_79b9_u32;
-    let mut next = move |m: u32| {
-        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-        (state >> 8) % m
-    };
+    let mut next = lcg(0x9e37_79b9_u32);
     let lut: KernelLut = KernelLut::new(&MapConfig::default()).unwrap();
     for case in 0..30 {
         let mut map = [(VoxelKey::default(), seen(0.0)); 80];
@@ -252,4 +243,12 @@ fn a_wall_view_reads_each_map_voxel_once() {
             .to_bits()
     );
     assert_eq!(map.0.get(), 5 * 12 * 12);
+}
+
+/// A small LCG drawing below `m`: the same cases every run.
+fn lcg(mut state: u32) -> impl FnMut(u32) -> u32 {
+    move |m| {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (state >> 8) % m
+    }
 }
