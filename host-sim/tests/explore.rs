@@ -27,6 +27,19 @@ fn every_room_is_reachable_and_the_fast_score_is_the_maps() {
         world.views.len()
     );
 
+    // The dense slots the explorers score by name the same voxels as the footprints' keys.
+    let key_of: std::collections::HashMap<u32, _> =
+        world.slots.iter().map(|(&k, &s)| (s, k)).collect();
+    assert_eq!(key_of.len(), world.slots.len(), "two voxels share a slot");
+    for (_, fp) in &world.views {
+        assert_eq!(fp.slot_weights.len(), fp.weights.len());
+        for (&(s, ws), &(k, w)) in fp.slot_weights.iter().zip(&fp.weights) {
+            assert_eq!((key_of[&s], ws), (k, w));
+        }
+        let hits: Vec<_> = fp.hit_slots.iter().map(|s| key_of[s]).collect();
+        assert_eq!(hits, fp.hits);
+    }
+
     // After one real frame, the footprint's Σ gain(λ, w) equals ObsMap::view_score on the same points.
     let lut: KernelLut = KernelLut::new(&config).unwrap();
     let mut map = ObsMap::<2>::new(config).unwrap();

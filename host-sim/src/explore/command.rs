@@ -9,7 +9,7 @@ use crate::sim::mix_all;
 use crate::sim::sensor::DepthCamera;
 use crate::sim::vocab::Vocabulary;
 use anyhow::{Context, Result};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// `host-sim explore`.
 #[derive(clap::Args, Debug)]
@@ -33,6 +33,11 @@ pub struct ExploreArgs {
     /// Information gain plans tours of this many views and drives to the first (1: the best single view).
     #[arg(long, default_value_t = 1)]
     pub horizon: usize,
+    /// Reuse the random and nearest-frontier runs kept in this directory by an earlier call with the same
+    /// house, seed and budget (and the same build): they do not depend on information gain's settings, so
+    /// comparing its designs costs a third of the time. Runs not found there are made and kept.
+    #[arg(long)]
+    pub baselines: Option<PathBuf>,
     /// Directory for the plot (`explore.png`; `explore-<layout>.png` with `--layouts`).
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
@@ -58,8 +63,9 @@ pub fn explore(args: &ExploreArgs) -> Result<()> {
     if !(1..=4).contains(&args.horizon) {
         anyhow::bail!("--horizon must be 1 to 4 views");
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    for dir in std::iter::once(&args.out).chain(&args.baselines) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     if args.layouts.is_empty() {
         house(args, args.layout_seed, "explore.png")?;
         return Ok(());
@@ -107,7 +113,24 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
                             utility_offset: args.utility_offset,
                             horizon: args.horizon,
                         };
-                        run(world, dec, truth, config, &explorer)
+                        let kept = (p != Planner::InformationGain)
+                            .then_some(args.baselines.as_deref())
+                            .flatten()
+                            .map(|dir| {
+                                dir.join(format!(
+                                    "{}-house{layout}-seed{seed}-budget{}.txt",
+                                    p.name().replace(' ', "-"),
+                                    args.budget
+                                ))
+                            });
+                        if let Some(samples) = kept.as_deref().and_then(read_samples) {
+                            return Ok(samples);
+                        }
+                        let samples = run(world, dec, truth, config, &explorer)?;
+                        if let Some(path) = kept {
+                            write_samples(&path, &samples)?;
+                        }
+                        Ok(samples)
                     })
                 })
                 .collect();
@@ -265,4 +288,31 @@ fn summary(outcomes: &[Outcome]) -> String {
         worst,
         ahead
     )
+}
+
+/// Samples kept by [`write_samples`], if the file is there and whole.
+fn read_samples(path: &Path) -> Option<Vec<Sample>> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let samples: Option<Vec<Sample>> = text
+        .lines()
+        .map(|line| {
+            let mut f = line.split_whitespace();
+            Some(Sample {
+                distance: f.next()?.parse().ok()?,
+                accuracy: f.next()?.parse().ok()?,
+                miou: f.next()?.parse().ok()?,
+                frames: f.next()?.parse().ok()?,
+            })
+        })
+        .collect();
+    samples.filter(|s| !s.is_empty())
+}
+
+/// Keep a run's samples as text, one per line (Rust prints floats so that they parse back exactly).
+fn write_samples(path: &Path, samples: &[Sample]) -> Result<()> {
+    let text: String = samples
+        .iter()
+        .map(|s| format!("{} {} {} {}\n", s.distance, s.accuracy, s.miou, s.frames))
+        .collect();
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }

@@ -98,6 +98,8 @@ struct Robot<'a> {
     map: ObsMap<D>,
     /// Kernel-weighted point count per voxel (the gathered λ above the prior), kept as frames arrive.
     counts: FxHashMap<VoxelKey, f32>,
+    /// The same, by the world's voxel slots (what scoring reads).
+    seen: Vec<f32>,
     rng: Xoshiro256PlusPlus,
     frame: u32,
     travelled: f32,
@@ -121,7 +123,10 @@ impl Robot<'_> {
         for p in &positions {
             if let Ok(k) = VoxelKey::from_position(*p, self.lut.inv_voxel_size()) {
                 spread(&self.lut, k, 0, |t, w| {
-                    *self.counts.entry(t).or_default() += w
+                    *self.counts.entry(t).or_default() += w;
+                    if let Some(&s) = self.world.slots.get(&t) {
+                        self.seen[s as usize] += w;
+                    }
                 });
             }
         }
@@ -134,17 +139,17 @@ impl Robot<'_> {
 
     /// The information-gain score of a candidate: Σ gain(λ, w) over its footprint.
     fn score(&self, fp: &world::Footprint) -> f32 {
-        fp.weights
+        fp.slot_weights
             .iter()
-            .map(|&(k, w)| voxel_gain(self.lambda(k), w))
+            .map(|&(s, w)| voxel_gain(self.prior_lambda + self.seen[s as usize], w))
             .sum()
     }
 
     fn unknown_share(&self, fp: &world::Footprint) -> f32 {
         let unknown = fp
-            .hits
+            .hit_slots
             .iter()
-            .filter(|k| self.counts.get(k).copied().unwrap_or(0.0) < 0.5)
+            .filter(|&&s| self.seen[s as usize] < 0.5)
             .count();
         unknown as f32 / fp.hits.len().max(1) as f32
     }
@@ -228,6 +233,7 @@ pub fn run(
         camera: DepthCamera::default(),
         map: ObsMap::new(*config)?,
         counts: FxHashMap::default(),
+        seen: vec![0.0; world.slots.len()],
         rng: Xoshiro256PlusPlus::seed_from_u64(mix_all(&[seed, 0xE7F1])),
         frame: 0,
         travelled: 0.0,

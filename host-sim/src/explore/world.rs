@@ -29,8 +29,12 @@ const PITCH: f32 = 0.25;
 const LATTICE: usize = 2;
 /// Headings per candidate place.
 pub const HEADINGS: usize = 8;
-/// Rays per predicted view (a 12 × 9 grid over the camera's field of view).
-const RAYS: (u32, u32) = (12, 9);
+/// Rays per predicted view (a 24 × 18 grid over the camera's field of view). Each ray deposits its share of
+/// the frame's points in the voxel it hits, so the grid must be fine enough that a view's footprint grows
+/// with the surface it covers: with 12 × 9 rays every ray of a view onto unseen surface fell in a voxel of
+/// its own and every such view scored the same (≈ 108 × 27 voxels at the unseen gain), whatever it covered,
+/// and information gain degenerated into "the nearest view onto anything unseen" (docs/numbers.md).
+const RAYS: (u32, u32) = (24, 18);
 
 /// A candidate view: a place and a heading.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -48,6 +52,10 @@ pub struct Footprint {
     pub weights: Vec<(VoxelKey, f32)>,
     /// The voxels the predicted points fall in.
     pub hits: Vec<VoxelKey>,
+    /// `weights` with each voxel as its slot in [`World::slots`] (scoring reads an array, not a hash map).
+    pub slot_weights: Vec<(u32, f32)>,
+    /// `hits` as slots.
+    pub hit_slots: Vec<u32>,
 }
 
 /// The house as the explorers see it.
@@ -59,6 +67,8 @@ pub struct World {
     free: Vec<bool>,
     /// Candidate views and what each would see.
     pub views: Vec<(View, Footprint)>,
+    /// A dense index of every voxel some candidate view would reach.
+    pub slots: FxHashMap<VoxelKey, u32>,
 }
 
 impl World {
@@ -101,6 +111,7 @@ impl World {
             dims,
             free,
             views: Vec::new(),
+            slots: FxHashMap::default(),
         };
         let camera = DepthCamera {
             pixels_per_frame: pixels,
@@ -124,6 +135,16 @@ impl World {
                 }
             }
         }
+        let mut slots = FxHashMap::default();
+        for (_, fp) in &mut world.views {
+            let mut slot = |k: VoxelKey| {
+                let n = slots.len() as u32;
+                *slots.entry(k).or_insert(n)
+            };
+            fp.slot_weights = fp.weights.iter().map(|&(k, w)| (slot(k), w)).collect();
+            fp.hit_slots = fp.hits.iter().map(|&k| slot(k)).collect();
+        }
+        world.slots = slots;
         Ok(world)
     }
 
@@ -274,5 +295,9 @@ pub fn footprint(lut: &KernelLut, points: &[[f32; 3]], per_point: f32) -> Footpr
     hits.dedup();
     let mut weights: Vec<(VoxelKey, f32)> = weights.into_iter().collect();
     weights.sort_unstable_by_key(|(k, _)| *k);
-    Footprint { weights, hits }
+    Footprint {
+        weights,
+        hits,
+        ..Footprint::default()
+    }
 }
