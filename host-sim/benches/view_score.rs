@@ -1,5 +1,5 @@
 //! The information-gain score of one candidate view (`latentbki::info_gain::view_score` through `ObsMap::view_score`),
-//! on the house of `host-sim explore`: a 12 × 9-ray predicted view scored against a map of the first 20
+//! on the house of `host-sim explore`: a 12 × 9-ray predicted view (the explorers now predict 24 × 18) scored against a map of the first 20
 //! frames of the scripted loop (D = 64). Also the explorer's fast path: Σ gain(λ, w) over the view's
 //! precomputed kernel footprint, λ gathered per voxel.
 //! Run: `cargo bench -p host-sim --bench view_score`.
@@ -29,7 +29,7 @@ fn bench(c: &mut Criterion) {
     }
     let world = World::new(scene, &config, 3072).unwrap();
     let (view, _) = world.views[world.views.len() / 3];
-    let points = world.predicted(view);
+    let points = world.predicted_grid(view, (12, 9));
     let lut: KernelLut = KernelLut::new(&config).unwrap();
     let fp = footprint(&lut, &points, 1.0);
     println!(

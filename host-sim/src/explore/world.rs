@@ -128,7 +128,7 @@ impl World {
                     cell,
                     yaw: h as f32 * std::f32::consts::TAU / HEADINGS as f32,
                 };
-                let points = world.predicted_points(&world.pose(view), &camera);
+                let points = world.predicted_points(&world.pose(view), &camera, RAYS);
                 let fp = footprint(&lut, &points, per_ray);
                 if !fp.hits.is_empty() {
                     world.views.push((view, fp));
@@ -245,19 +245,30 @@ impl World {
         cells
     }
 
-    /// The points a view is predicted to see (the coarse ray grid cast against the surfaces), map frame.
+    /// The points a view is predicted to see (the explorers' ray grid cast against the surfaces), map frame.
     pub fn predicted(&self, view: View) -> Vec<[f32; 3]> {
-        self.predicted_points(&self.pose(view), &DepthCamera::default())
+        self.predicted_grid(view, RAYS)
     }
 
-    fn predicted_points(&self, pose: &Isometry3<f32>, camera: &DepthCamera) -> Vec<[f32; 3]> {
+    /// The same with another grid of (columns, rows) rays (the view-score benchmark keeps 12 × 9, the size
+    /// its documented cost was measured at).
+    pub fn predicted_grid(&self, view: View, rays: (u32, u32)) -> Vec<[f32; 3]> {
+        self.predicted_points(&self.pose(view), &DepthCamera::default(), rays)
+    }
+
+    fn predicted_points(
+        &self,
+        pose: &Isometry3<f32>,
+        camera: &DepthCamera,
+        rays: (u32, u32),
+    ) -> Vec<[f32; 3]> {
         let fx = (camera.hfov_deg.to_radians() / 2.0).tan();
         let fy = fx * camera.height as f32 / camera.width as f32;
         let mut out = Vec::new();
-        for j in 0..RAYS.1 {
-            for i in 0..RAYS.0 {
-                let u = ((i as f32 + 0.5) / RAYS.0 as f32 * 2.0 - 1.0) * fx;
-                let v = ((j as f32 + 0.5) / RAYS.1 as f32 * 2.0 - 1.0) * fy;
+        for j in 0..rays.1 {
+            for i in 0..rays.0 {
+                let u = ((i as f32 + 0.5) / rays.0 as f32 * 2.0 - 1.0) * fx;
+                let v = ((j as f32 + 0.5) / rays.1 as f32 * 2.0 - 1.0) * fy;
                 let ray = Vector3::new(u, v, 1.0);
                 let len = ray.norm();
                 let d = pose.rotation * (ray / len);
