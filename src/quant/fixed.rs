@@ -9,7 +9,7 @@
 //! per-voxel power-of-two unit, products of 16-bit pieces where 16 bits are enough; only the final codes go
 //! through the f32 bit layout (built from integers), so they mean exactly what [`QuantVoxel::decode`]
 //! reads. The codes equal the f32 path's to the rounding of the last code step (tests: within 1.3 mean
-//! steps and 25 % of scatter on 400 merges; 600 coolings of one voxel walk no farther than the f32 path's).
+//! steps and one scatter step on 400 merges; 600 coolings of one voxel walk no farther than the f32 path's).
 //!
 //! Only the targets without an FPU cool int8 sums this way ([`super::Cooling::NATIVE`]; a hosted build
 //! links both, so the QEMU boards' host twins compute what each board does). Measured with
