@@ -1,7 +1,7 @@
 //! What a hot voxel observed from int8 features, in exact integers: the point count n and per dimension Σc
 //! and Σc² of the codes. Why its own module: it is the per-point work of an int8 point (one integer add and
 //! one multiply-add per dimension), and how the sums lie in memory depends on the target — plain arrays,
-//! or on a Cortex-M4/M7 the lanes its DSP instructions update ([`super::dsp`]); readers see the same values
+//! or on a Cortex-M4/M7 the lanes its DSP instructions update (`dsp.rs`); readers see the same values
 //! through [`CodeSums::dims`] either way.
 
 use super::ObsStats;
@@ -12,7 +12,7 @@ pub const CODE_MAX: i8 = 127;
 
 /// Points one [`CodeSums`] may hold: up to it, n·Σc² and (Σc)² stay below 2³¹ (255² · 127² · 255 <
 /// 1.1·10⁹), so the scatter's numerator is formed in i32 — no 64-bit arithmetic, which a Cortex-M0 or an
-/// RV32 does in library calls — and |Σc| ≤ 32,385 fits 16 bits (the lanes of [`super::dsp`]). A voxel
+/// RV32 does in library calls — and |Σc| ≤ 32,385 fits 16 bits (the 16-bit lanes of `src/obs/dsp.rs`). A voxel
 /// observed longer cools (one merge per 255 points).
 pub const CODE_SUMS_MAX_COUNT: u32 = 255;
 
@@ -130,7 +130,7 @@ impl<const D: usize> CodeSums<D> {
 
     /// Add one point's codes if every one is in range ([`code_in_range`](super::code_in_range); callers check
     /// [`Self::is_full`]); `false`, and nothing changed, if one is not. On a Cortex-M4/M7 the check rides
-    /// on the additions' loads ([`super::dsp`]); elsewhere it runs first.
+    /// on the additions' loads (`src/obs/dsp.rs`); elsewhere it runs first.
     #[inline]
     pub fn add_checked(&mut self, codes: &[i8; D]) -> bool {
         #[cfg(not(latentbki_dsp))]
