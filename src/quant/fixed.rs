@@ -254,10 +254,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // Built in place (no zeroing of 512 bytes first: `__aeabi_memclr4` was ≈ 30 instructions per point
         // on thumbv6m).
         let merged: [(i32, u32); D] = core::array::from_fn(|i| {
-            let (sum, sq) = (
-                sums.sum.get(i).copied().unwrap_or(0),
-                sums.squares.get(i).copied().unwrap_or(0),
-            );
+            let (sum, sq) = (sums.sum(i), sums.square(i));
             let (m0, m, x) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn);
             max_abs = max_abs.max(m.unsigned_abs());
             let old = old_units
