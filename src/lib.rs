@@ -72,7 +72,7 @@
 //! device path uses.
 #![no_std]
 #![deny(missing_docs)]
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 // `!(x > 0.0)` is deliberate throughout: it is also true for NaN, which must be refused too.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 // Loops over a dimension index that address several parallel arrays read like the equations.

@@ -28,7 +28,14 @@ use crate::key::VoxelKey;
 use crate::stats::{combine, update_dim_point, VoxelStats};
 
 mod code_range;
+mod code_sums;
+// The core's only `unsafe` code: the DSP instructions of the int8 sums (the module says why).
+#[cfg(any(latentbki_dsp, test))]
+#[allow(unsafe_code)]
+mod dsp;
 pub use code_range::code_in_range;
+pub(crate) use code_sums::scatter_numerator;
+pub use code_sums::{CodeSums, CODE_MAX, CODE_SUMS_MAX_COUNT};
 
 /// What was observed in one voxel: the (weighted) point count n, the mean m and the diagonal scatter
 /// S = Σ(y − m)² of the features. Also the kernel-weighted moments of a neighbourhood (K, ȳ, S̄).
@@ -105,19 +112,13 @@ impl<const D: usize> ObsStats<D> {
         let total = self.count + k_bar;
         let gain = k_bar / total;
         let cross = self.count * gain;
-        for i in 0..D {
-            let (sum, sq) = (sums.sum[i], sums.squares[i]);
-            let y_bar = scale * (sum as f32 * inv_n);
-            let s_bar = scatter_numerator(sums.count, sum, sq) as f32 * scale2_over_n;
-            crate::stats::update_dim(
-                &mut self.mean[i],
-                &mut self.scatter[i],
-                gain,
-                cross,
-                y_bar,
-                s_bar,
-            );
-        }
+        sums.for_each_dim(|i, sum, sq| {
+            if let (Some(mean), Some(scatter)) = (self.mean.get_mut(i), self.scatter.get_mut(i)) {
+                let y_bar = scale * (sum as f32 * inv_n);
+                let s_bar = scatter_numerator(sums.count, sum, sq) as f32 * scale2_over_n;
+                crate::stats::update_dim(mean, scatter, gain, cross, y_bar, s_bar);
+            }
+        });
         self.count = total;
     }
 
@@ -136,118 +137,6 @@ impl<const D: usize> ObsStats<D> {
             && self.mean.iter().all(|v| v.is_finite())
             && self.scatter.iter().all(|v| v.is_finite() && *v >= 0.0)
     }
-}
-
-/// Largest int8 feature code magnitude: codes are −127..=127 (−128 is refused, so the code range is
-/// symmetric and a code's negation is a code).
-pub const CODE_MAX: i8 = 127;
-
-/// Points one [`CodeSums`] may hold: up to it, n·Σc² and (Σc)² stay below 2³¹ (255² · 127² · 255 <
-/// 1.1·10⁹), so the scatter's numerator is formed in i32 — no 64-bit arithmetic, which a Cortex-M0 or an
-/// RV32 does in library calls. A voxel observed longer cools (one merge per 255 points).
-pub const CODE_SUMS_MAX_COUNT: u32 = 255;
-
-/// What was observed in one voxel from int8 features (y = scale · c), in exact integers: the point count n
-/// and per dimension Σc and Σc² of the codes.
-///
-/// Why integers: an accelerator hands the map int8 codes, and a microcontroller without an FPU adds an
-/// integer in one instruction where a float costs a library call. Integer sums are exact, so the raw form
-/// S = Σc² − (Σc)²/n cannot cancel (the failure of raw f32 sums that [`ObsStats`] avoids with Welford's
-/// update): it is formed once, in i64, when the sums are turned into [`ObsStats`] ([`Self::to_obs`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct CodeSums<const D: usize> {
-    /// n: points added (at most [`CODE_SUMS_MAX_COUNT`]).
-    pub count: u32,
-    /// Σc per dimension.
-    pub sum: [i32; D],
-    /// Σc² per dimension.
-    pub squares: [u32; D],
-}
-
-impl<const D: usize> CodeSums<D> {
-    /// No point.
-    pub const EMPTY: Self = Self {
-        count: 0,
-        sum: [0; D],
-        squares: [0; D],
-    };
-
-    /// Whether it can take another point ([`CODE_SUMS_MAX_COUNT`]).
-    #[inline]
-    pub fn is_full(&self) -> bool {
-        self.count >= CODE_SUMS_MAX_COUNT
-    }
-
-    /// Add one point's codes (callers check [`code_in_range`] and [`Self::is_full`]): two integer
-    /// additions and a multiply per dimension.
-    #[inline]
-    pub fn add(&mut self, codes: &[i8; D]) {
-        self.count = self.count.wrapping_add(1);
-        // Wrapping only so that no overflow check is linked: with n ≤ 255 nothing can wrap. Two dimensions
-        // at a time, each pair of sums read and written together (`ldm`/`stm` on v6-M).
-        let mut sums = self.sum.chunks_exact_mut(2);
-        let mut squares = self.squares.chunks_exact_mut(2);
-        let mut pairs = codes.chunks_exact(2);
-        for ((s, q), c) in (&mut sums).zip(&mut squares).zip(&mut pairs) {
-            if let ([s0, s1], [q0, q1], &[c0, c1]) = (s, q, c) {
-                let (c0, c1) = (i32::from(c0), i32::from(c1));
-                let (a0, a1) = (*s0, *s1);
-                (*s0, *s1) = (a0.wrapping_add(c0), a1.wrapping_add(c1));
-                let (b0, b1) = (*q0, *q1);
-                (*q0, *q1) = (
-                    b0.wrapping_add(c0.wrapping_mul(c0) as u32),
-                    b1.wrapping_add(c1.wrapping_mul(c1) as u32),
-                );
-            }
-        }
-        let rest = sums
-            .into_remainder()
-            .iter_mut()
-            .zip(squares.into_remainder());
-        for ((s, q), &c) in rest.zip(pairs.remainder()) {
-            let c = i32::from(c);
-            *s = s.wrapping_add(c);
-            *q = q.wrapping_add(c.wrapping_mul(c) as u32);
-        }
-    }
-
-    /// The same observations as f32 statistics of y = scale · c: m = scale · Σc / n,
-    /// S = scale² · (n Σc² − (Σc)²) / n with the numerator exact in i32 (rounded once to f32).
-    pub fn to_obs(&self, scale: f32) -> ObsStats<D> {
-        let mut out = ObsStats::EMPTY;
-        self.write_obs(scale, &mut out);
-        out
-    }
-
-    /// [`Self::to_obs`] into existing statistics (no 516-byte temporary on the device stack).
-    pub fn write_obs(&self, scale: f32, out: &mut ObsStats<D>) {
-        if self.count == 0 {
-            *out = ObsStats::EMPTY;
-            return;
-        }
-        let n = self.count as f32;
-        let inv_n = 1.0 / n;
-        let scale2_over_n = scale * scale * inv_n;
-        out.count = n;
-        for (((m, s), &sum), &sq) in out
-            .mean
-            .iter_mut()
-            .zip(&mut out.scatter)
-            .zip(&self.sum)
-            .zip(&self.squares)
-        {
-            *m = scale * (sum as f32 * inv_n);
-            *s = scatter_numerator(self.count, sum, sq) as f32 * scale2_over_n;
-        }
-    }
-}
-
-/// n·Σc² − (Σc)² = n·S in code units, exact: with n ≤ [`CODE_SUMS_MAX_COUNT`] both terms are below 2³¹
-/// (wrapping arithmetic only so that no overflow check is linked; it cannot wrap). Never negative.
-#[inline(always)]
-pub(crate) fn scatter_numerator(n: u32, sum: i32, squares: u32) -> u32 {
-    n.wrapping_mul(squares)
-        .wrapping_sub(sum.wrapping_mul(sum) as u32)
 }
 
 // Defined here rather than in `stats`, so that `stats` (the posterior) does not depend on `obs` (what

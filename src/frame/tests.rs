@@ -171,7 +171,7 @@ fn a_rice_summary_of_far_keys_fits_the_smallest_frame_the_encoder_accepts() {
         input = rest;
     }
     // Longer than a packed head and the codes could be.
-    let packed_max = 3 * 5 + 5 + 4 + RICE.code_len(16);
+    let packed_max = crate::wire::codec::PACKED_HEAD_MAX + RICE.code_len(16);
     assert!(
         matches!(got[..], [(k, r, len)] if k == key && r == 1 << 31 && len > packed_max),
         "{got:?}, packed at most {packed_max}"

@@ -224,6 +224,17 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         h
     }
 
+    /// Whether hot entry `h` is as of the clock's tick ([`Self::hot_to_now`] would change nothing).
+    #[cfg(latentbki_dsp)]
+    #[inline(always)]
+    pub(super) fn hot_is_now(&self, h: usize) -> bool {
+        self.clock.forgetting().is_none()
+            || self
+                .hot
+                .get(h)
+                .is_some_and(|e| C::tick(e.stamp) == C::tick(self.clock.now()))
+    }
+
     /// Bring hot entry `h` to the clock's tick before a point goes in (forgetting only; nothing in a map
     /// that never forgets): what it holds fades by its age, int8 sums turning into f32 statistics first
     /// (integer sums cannot be weighted). Once per voxel and tick, not per point.

@@ -133,6 +133,10 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         if self.int8_scale.to_bits() == 0 {
             return Err(Rejection::FeatureScale);
         }
+        #[cfg(latentbki_dsp)]
+        if let Some(taken) = self.add_codes_at_hand(key, codes) {
+            return taken;
+        }
         if !code_in_range(codes) {
             return Err(Rejection::CodeOutOfRange);
         }
@@ -146,5 +150,35 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         e.acc.add_codes(codes, scale);
         e.referenced = true;
         Ok(())
+    }
+
+    /// The common case on a Cortex-M4/M7: the point's voxel is the previous point's hot entry (or the
+    /// hint's), up to date, holding int8 sums with room. The codes are checked as they are added
+    /// ([`crate::obs::CodeSums::add_checked`]: the check rides on the additions' loads) and a refused
+    /// point is taken out again, so nothing changes for it but the cache of the previous point's entry.
+    /// `None`: the general path (checked first) takes the point.
+    #[cfg(latentbki_dsp)]
+    #[inline(always)]
+    fn add_codes_at_hand(
+        &mut self,
+        key: VoxelKey,
+        codes: &[i8; D],
+    ) -> Option<Result<(), Rejection>> {
+        let h = self.hot_at_hand(key)?;
+        if !self.hot_is_now(h) {
+            return None;
+        }
+        let e = self.hot.get_mut(h)?;
+        let super::hot::Acc::Codes(c) = &mut e.acc else {
+            return None;
+        };
+        if c.is_full() {
+            return None;
+        }
+        if !c.add_checked(codes) {
+            return Some(Err(Rejection::CodeOutOfRange));
+        }
+        e.referenced = true;
+        Some(Ok(()))
     }
 }

@@ -477,21 +477,34 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         int8: bool,
     ) -> Result<usize, Rejection> {
         #[cfg(target_arch = "arm")]
-        if (int8 || core::mem::size_of::<C::Stamp>() == 0) && !self.stranded {
-            let held = |h: usize| h < self.hot_len && self.hot.get(h).is_some_and(|e| e.key == key);
-            if held(self.last_hot) {
-                return Ok(self.last_hot);
-            }
-            if let Some(h) = self.recent_hot.get(hot_tile(key)).map(|&h| usize::from(h)) {
-                if held(h) {
-                    self.last_hot = h;
-                    return Ok(h);
-                }
+        if int8 || core::mem::size_of::<C::Stamp>() == 0 {
+            if let Some(h) = self.hot_at_hand(key) {
+                return Ok(h);
             }
         }
         #[cfg(not(target_arch = "arm"))]
         let _ = int8;
         self.find_hot(key, sink)
+    }
+
+    /// [`Self::hot_entry`]'s common case alone: the hot entry of `key`'s voxel if it is the previous
+    /// point's or the recent-hot hint's (and no held voxel was left outside the window); `None` otherwise.
+    #[cfg(target_arch = "arm")]
+    #[inline(always)]
+    fn hot_at_hand(&mut self, key: VoxelKey) -> Option<usize> {
+        if self.stranded {
+            return None;
+        }
+        let held = |h: usize| h < self.hot_len && self.hot.get(h).is_some_and(|e| e.key == key);
+        if held(self.last_hot) {
+            return Some(self.last_hot);
+        }
+        let h = usize::from(*self.recent_hot.get(hot_tile(key))?);
+        if held(h) {
+            self.last_hot = h;
+            return Some(h);
+        }
+        None
     }
 
     /// [`Self::hot_entry`] in full.

@@ -202,9 +202,12 @@ impl SummaryCodec {
         if self.is_rice() {
             return super::rice::HEAD_MAX_BITS.div_ceil(8) + self.code_len(dim);
         }
-        3 * 5 + 5 + 4 + self.code_len(dim)
+        PACKED_HEAD_MAX + self.code_len(dim)
     }
 }
+
+/// Most bytes of a packed summary's head: 5-byte key deltas and residency field, a 4-byte count.
+pub const PACKED_HEAD_MAX: usize = 3 * 5 + 5 + 4;
 
 /// One stage of the Walsh–Hadamard transform in constant geometry: pairs (2j, 2j + 1) of `from` become
 /// their sum at j and their difference at j + n/2 of `to` (both of length n). log₂ n stages are the

@@ -166,9 +166,6 @@ mod scheduler;
 
 pub use queue::{live, LiveItem};
 
-/// Most bytes of a packed summary's head: 5-byte key deltas and residency field, a 4-byte count.
-const PACKED_HEAD_MAX: usize = 3 * 5 + 5 + 4;
-
 /// Largest wire size of one summary of a session (a stamped one is [`queue::STAMP_EXTRA`] longer).
 fn max_summary_len<const D: usize>(config: &SessionConfig) -> usize {
     let len = config.codec.max_summary_len(D);
@@ -299,7 +296,9 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         if !codec.is_rice() {
             return self.max_summary_len();
         }
-        self.max_summary_len() - codec.max_summary_len(D) + PACKED_HEAD_MAX + codec.code_len(D)
+        self.max_summary_len() - codec.max_summary_len(D)
+            + crate::wire::codec::PACKED_HEAD_MAX
+            + codec.code_len(D)
     }
 
     /// End the session: queued voxels are dropped, nothing is sent and every voxel is refused until the
