@@ -9,7 +9,7 @@
 //! per-voxel power-of-two unit, products of 16-bit pieces where 16 bits are enough; only the final codes go
 //! through the f32 bit layout (built from integers), so they mean exactly what [`QuantVoxel::decode`]
 //! reads. The codes equal the f32 path's to the rounding of the last code step (tests: within 1.3 mean
-//! steps and 25 % of scatter on 400 merges; 600 coolings of one voxel walk no farther than the f32 path's).
+//! steps and one scatter step on 400 merges; 600 coolings of one voxel walk no farther than the f32 path's).
 //!
 //! Only the targets without an FPU cool int8 sums this way ([`super::Cooling::NATIVE`]; a hosted build
 //! links both, so the QEMU boards' host twins compute what each board does). Measured with
@@ -20,7 +20,9 @@
 //! per-dimension helpers are kept out of line on riscv32imac (flash: it stays under 64 KiB); on v6-M the 64-bit
 //! products are built from 16-bit halves.
 
-use super::{psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT};
+use super::{
+    psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT, PSI_STEPS_LOG2,
+};
 use crate::obs::CodeSums;
 use half::f16;
 
@@ -132,15 +134,17 @@ struct ScatterUnits {
 }
 
 impl ScatterUnits {
-    /// The old scatter of minifloat key `k` (code plus base) in units: exponent k/4, mantissa 1 + (k%4)/4.
+    /// The old scatter of minifloat key `k` (code plus base) in units: exponent k / 2^L, mantissa
+    /// 1 + (k mod 2^L) / 2^L, L = [`PSI_STEPS_LOG2`].
     fn old_units(&self, k: u32) -> u32 {
-        if !self.old || k < 4 {
+        const STEPS: u32 = 1 << PSI_STEPS_LOG2;
+        if !self.old || k < STEPS {
             0
         } else {
-            // (4 + f) · 1/s² mantissa < 7 · 2²⁴.
+            // (2^L + f) · 1/s² mantissa < 2^(L+1) · 2²⁴; `old_shift` is for L = 2 (2^(E−129)·(4 + f)).
             shift(
-                (4 + (k & 3)) * self.inv_s2,
-                (k >> 2) as i32 + self.old_shift,
+                (STEPS + (k & (STEPS - 1))) * self.inv_s2,
+                (k >> PSI_STEPS_LOG2) as i32 + self.old_shift + (2 - PSI_STEPS_LOG2 as i32),
             )
         }
     }
@@ -233,7 +237,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             s2: fix.s2,
             g,
         };
-        // The old scatters in units, one per Ψ code (32) instead of one per dimension (64): a voxel's codes
+        // The old scatters in units, one per Ψ code (16) instead of one per dimension (64): a voxel's codes
         // share their base, so the code alone picks the value.
         let base_old = u32::from(self.psi_base);
         let mut old_units = [0u32; 1 << super::PSI_BITS];
