@@ -14,7 +14,7 @@ use static_cell::ConstStaticCell;
 
 /// Feature dimension.
 const D: usize = 64;
-/// Voxels the map holds (≈ 112 B each at D = 64: see `LocalMap::BYTES_PER_VOXEL`).
+/// Voxels the map holds (≈ 120 B each at D = 64: see `LocalMap::BYTES_PER_VOXEL`).
 const VOXELS: usize = 1024;
 type Robot = Mapper<D, VOXELS, { packed_len(D) }, 4096, 512>;
 

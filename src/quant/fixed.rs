@@ -237,7 +237,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             s2: fix.s2,
             g,
         };
-        // The old scatters in units, one per Ψ code (16) instead of one per dimension (64): a voxel's codes
+        // The old scatters in units, one per Ψ code (32) instead of one per dimension (64): a voxel's codes
         // share their base, so the code alone picks the value.
         let base_old = u32::from(self.psi_base);
         let mut old_units = [0u32; 1 << super::PSI_BITS];

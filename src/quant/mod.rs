@@ -52,21 +52,24 @@ pub use weights::{MeanWeights, MAX_MEAN_SHIFT};
 // default / a weak prior) and on the streaming tests' PCA features (μ RMS against the f32 reference), bytes
 // per voxel with slot and index:
 //   m 6 + S 5 (4 steps/octave): 112 B, μ 2.1 % / 6.8 % (PCA), Ψ p95 1.7 % / 7.9 %
-//   m 7 + S 5 (4 steps/octave): 120 B, μ 1.0 % / 3.6 % (PCA), Ψ p95 1.2 % / 5.3 %
+//   m 7 + S 5 (4 steps/octave): 120 B, μ 1.0 % / 3.6 % (PCA), Ψ p95 1.2 % / 5.3 %   ← used
 //   m 8 + S 5 (4 steps/octave): 128 B, μ 0.5 % / 1.9 % (PCA), Ψ p95 1.1 % / 4.5 %
 //   m 7 + S 4 (2 steps/octave): 112 B, Ψ p95 2.1 % / 8.8 %;  m 6 + S 4 (2 steps/octave): 104 B, 10.6 % (fails)
 // Re-measured for 4-bit scatter with one re-encode per visit (the hot tier), same test, Ψ p95 / E-opt p95 with
 // the default / a weak prior (the scatter does not enter μ: the demo's μ figures are unchanged):
-//   m 7 + S 5 (4 steps/octave): 120 B, Ψ 1.2 % / 5.3 %, E-opt 2.2 % / 5.1 %
-//   m 7 + S 4 (2 steps/octave): 112 B, Ψ 2.1 % / 8.8 %, E-opt 4.2 % / 9.5 %   ← used (issue 18: voxels per KiB)
+//   m 7 + S 5 (4 steps/octave): 120 B, Ψ 1.2 % / 5.3 %, E-opt 2.2 % / 5.1 %   ← used
+//   m 7 + S 4 (2 steps/octave): 112 B, Ψ 2.1 % / 8.8 %, E-opt 4.2 % / 9.5 %
 //   m 7 + S 4 (4 steps/octave, 4 octaves): 112 B, Ψ 5.4 % / 23.6 % (fails: small scatters clamp to the base)
+// The 4-bit row was used for a while (issue 18, answerable voxels per KiB): it bought 27.4 → 27.7 against a goal
+// of 35 and doubled the Ψ and E-opt tails (weak prior E-opt p95 0.095 against a bound of 0.10), so the 5-bit
+// codes are back; the map is sized from a fixed RAM budget, so narrower slots buy voxels that mostly overlap.
 /// Bits per mean code (signed).
 pub const MU_BITS: u32 = 7;
 /// Bits per scatter code.
-pub const PSI_BITS: u32 = 4;
-/// log2 of the scatter code steps per octave: 2 steps (mantissas 1, 1.5: steps of 33–50 %), so 4 bits span 8
-/// octaves.
-pub const PSI_STEPS_LOG2: u32 = 1;
+pub const PSI_BITS: u32 = 5;
+/// log2 of the scatter code steps per octave: 4 steps (mantissas 1, 1.25, 1.5, 1.75: steps of 14–25 %), so 5
+/// bits span 8 octaves.
+pub const PSI_STEPS_LOG2: u32 = 2;
 
 /// Bytes of packed codes for a D-dimensional voxel (mean codes, then scatter codes, each section
 /// byte-aligned).
@@ -365,7 +368,7 @@ mod tests {
                 "mean {i}"
             );
             // Stochastic rounding lands on one of the two neighbouring codes: within one step (the widest:
-            // mantissa 1 → 1 + 2^−PSI_STEPS_LOG2, 50 % at 2 steps per octave).
+            // mantissa 1 → 1 + 2^−PSI_STEPS_LOG2, 25 % at 4 steps per octave).
             let wide = 1.0 + 1.0 / (1u32 << PSI_STEPS_LOG2) as f32;
             let rel = back.scatter[i] / s.scatter[i];
             assert!(rel > 1.0 / wide && rel < wide, "psi {i}: {rel}");
