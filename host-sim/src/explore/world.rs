@@ -34,7 +34,7 @@ pub const HEADINGS: usize = 8;
 /// with the surface it covers: with 12 × 9 rays every ray of a view onto unseen surface fell in a voxel of
 /// its own and every such view scored the same (≈ 108 × 27 voxels at the unseen gain), whatever it covered,
 /// and information gain degenerated into "the nearest view onto anything unseen" (docs/numbers.md).
-const RAYS: (u32, u32) = (24, 18);
+pub const RAYS: (u32, u32) = (24, 18);
 
 /// A candidate view: a place and a heading.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -250,8 +250,8 @@ impl World {
         self.predicted_grid(view, RAYS)
     }
 
-    /// The same with another grid of (columns, rows) rays (the view-score benchmark keeps 12 × 9, the size
-    /// its documented cost was measured at).
+    /// The same with another grid of (columns, rows) rays (the view-score benchmark also scores the earlier
+    /// 12 × 9, to show how the cost grows with the voxels a view reaches).
     pub fn predicted_grid(&self, view: View, rays: (u32, u32)) -> Vec<[f32; 3]> {
         self.predicted_points(&self.pose(view), &DepthCamera::default(), rays)
     }
