@@ -19,7 +19,8 @@
 #                                     the rows of a build with `--features forgetting` against this one's,
 #                                     its flash and stack high-water mark; fails when either is over its
 #                                     limit (64 KiB, 8 KiB; STACK_LIMIT=bytes overrides the stack's)
-#        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots)
+#        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots; with
+#                                     --forgetting, the forgetting build's: frames and views together)
 set -euo pipefail
 cd "$(dirname "$0")/qemu-mps2-an386"
 export CARGO_TARGET_DIR="$PWD/target"
@@ -81,8 +82,10 @@ if [ "${1:-}" = --forgetting ]; then
   OUT="$OUT/insncount.so" plugin/build.sh
   for run in off on; do
     elf=$ELF; [ $run = on ] && elf=$FG_ELF
-    QEMU_PLUGIN="$OUT/insncount.so" QEMU_PLUGIN_LOG="$OUT/insn-$run.log" QEMU_SERIAL="$OUT/uart-$run.bin" \
-      ./run-qemu.sh "$elf" > "$OUT/stdout-$run.txt" || { echo "firmware ($run) failed: exit code $?" >&2; exit 1; }
+    # PROFILE=1: the forgetting build's run also logs per-PC counts (its hot spots, printed after the rows).
+    args=""; [ $run = on ] && [ "${PROFILE:-0}" = 1 ] && args="profile=on"
+    QEMU_PLUGIN="$OUT/insncount.so" QEMU_PLUGIN_ARGS="$args" QEMU_PLUGIN_LOG="$OUT/insn-$run.log" \
+      QEMU_SERIAL="$OUT/uart-$run.bin" ./run-qemu.sh "$elf" > "$OUT/stdout-$run.txt" || { echo "firmware ($run) failed: exit code $?" >&2; exit 1; }
     grep -q '^done$' "$OUT/stdout-$run.txt" || { echo "firmware ($run) did not finish" >&2; exit 1; }
     # A start marker seen twice without its stop means regions went uncounted (seen once, with a build
     # whose stops the plugin never saw): refuse to print such counts.
@@ -136,6 +139,12 @@ whole = max([int(s["setup_high_water"]) for s in stack] + [int(s["loop_high_wate
 print(f"| stack, whole run (set-up and view scoring included), the forgetting build | {whole} B | ≤ 8 KB |")
 open(f"{out}/stack-forgetting.txt", "w").write(f"{whole}\n")
 PY
+  if [ "${PROFILE:-0}" = 1 ]; then
+    # Every marked region of the forgetting build: the frames' work and the views scored after them.
+    "$LLVM_BIN/llvm-objdump" -d --no-show-raw-insn "$FG_ELF" > "$OUT/firmware-forgetting.dis"
+    echo
+    python3 ../profile.py "$OUT/firmware-forgetting.dis" "$OUT/insn-on.log"
+  fi
   # The rows are printed first; an image over a limit then fails the run (every limit checked, one line each).
   failed=0
   check_flash_limit "$FORGETTING_NAME" "$FG_ELF" >/dev/null || failed=1
