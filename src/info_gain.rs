@@ -51,8 +51,10 @@ pub fn voxel_gain(lambda: f32, w: f32) -> f32 {
         UNSEEN_LAMBDA
     };
     let ratio = (l + w) * (l + 1.0) / (l * (l + w + 1.0));
-    // About 1 or more, a normal number, for finite w and λ; an infinite one makes it NaN or ∞.
-    if !(ratio < f32::INFINITY) {
+    // About 1 or more, a normal number, for finite w and λ; an infinite one makes it NaN or ∞. Every
+    // factor is positive, so the ratio's bits order as it does: below ∞'s bits is finite (an integer
+    // compare on the bits `log2_normal` reads anyway, shorter on the device than a float one).
+    if ratio.to_bits() >= f32::INFINITY.to_bits() {
         return 0.0;
     }
     0.5 * core::f32::consts::LN_2 * crate::f32math::log2_normal(ratio)
