@@ -155,20 +155,24 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
         return Err(ScoreError::WideFilter);
     }
     let weights = lut.weights(0);
-    // Each offset as a step between slots of the window; and bit a of reaches[q]: the voxel at x-major
+    // Each offset as a step between slots of the window, beside its weight; and bit a of reaches[q]: the voxel at x-major
     // position q around a hit is a source of its target a. (`black_box`: an opaque call in a loop keeps
     // LLVM from unrolling it, which on Cortex-M would spend flash on a once-per-view setup.)
-    let mut steps = [0u16; MAX_TARGETS];
+    // (u32, not u16: no padding, so the array starts as one memclr, not 27 pairs of stores: flash.)
+    let mut kernel = [(0u32, 0.0f32); MAX_TARGETS];
     let mut reaches = [0u32; 128];
-    for (a, (t, oa)) in steps.iter_mut().zip(offsets).enumerate() {
-        *t = window::step(*oa);
+    for (a, ((t, oa), &k)) in kernel.iter_mut().zip(offsets).zip(weights).enumerate() {
+        *t = (u32::from(window::step(*oa)), k);
         for op in offsets {
             core::hint::black_box(());
             let d = |i: usize| i32::from(oa[i]) + i32::from(op[i]);
             reaches[window::x_major(d(0), d(1), d(2)) & 127] |= 1 << a;
         }
     }
-    let steps = steps.get(..offsets.len()).unwrap_or(&[]);
+    // (Weights as many as offsets: the table's; none would score nothing, as zero weights would.)
+    let kernel = kernel
+        .get(..offsets.len().min(weights.len()))
+        .unwrap_or(&[]);
     let mut win = Window::new();
     let mut score = 0.0;
     for (i, &(hit, _)) in hits.iter().enumerate() {
@@ -181,9 +185,9 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
         let mut counted = 0u32;
         win.earlier(|q| counted |= reaches[q & 127]);
         let centre = win.centre_slot();
-        for (a, &ra) in steps.iter().enumerate() {
+        for (a, &(ra, _)) in kernel.iter().enumerate() {
             if counted & (1 << a) == 0 {
-                let (w, k_sum) = win.sums(map, steps, weights, centre.wrapping_add(ra));
+                let (w, k_sum) = win.sums(map, kernel, centre.wrapping_add(ra as u16));
                 score += gain(prior_lambda + k_sum, w);
             }
         }

@@ -106,18 +106,18 @@ impl Window {
     }
 
     /// (w, K) of the target at slot `t`: the kernel-weighted point counts of the hits and of the map
-    /// around it, summed in the kernel table's order (each offset's slot step, and its weight).
+    /// around it, summed in the kernel table's order (each offset's slot step beside its weight: one
+    /// pointer walks both in the hot loop).
     #[inline(always)]
     pub(super) fn sums<const D: usize, M: ObsLookup<D> + ?Sized>(
         &mut self,
         map: &M,
-        steps: &[u16],
-        weights: &[f32],
+        kernel: &[(u32, f32)],
         t: u16,
     ) -> (f32, f32) {
         let (mut w, mut k_sum) = (0.0, 0.0);
-        for (&step, &k) in steps.iter().zip(weights) {
-            let s = usize::from(t.wrapping_add(step)) & (SLOTS - 1);
+        for &(step, k) in kernel {
+            let s = usize::from(t.wrapping_add(step as u16)) & (SLOTS - 1);
             // 0 where no hit with n > 0: adding k · 0 = +0 leaves w (≥ +0) as skipping it would.
             let (n, mut c) = self.slots[s];
             w += k * n;
