@@ -155,9 +155,10 @@ pub fn view_score<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized>(
         return Err(ScoreError::WideFilter);
     }
     let weights = lut.weights(0);
-    // Each offset as a step between slots of the window, beside its weight; and bit a of reaches[q]: the voxel at x-major
-    // position q around a hit is a source of its target a. (`black_box`: an opaque call in a loop keeps
-    // LLVM from unrolling it, which on Cortex-M would spend flash on a once-per-view setup.)
+    // Each offset as a step between slots of the window, beside its weight; and bit a of reaches[q]: the
+    // voxel at x-major position q around a hit is a source of its target a. (`black_box`: an opaque call
+    // in a loop keeps LLVM from unrolling it, which on Cortex-M would spend flash on a once-per-view
+    // setup.)
     // (u32, not u16: no padding, so the array starts as one memclr, not 27 pairs of stores: flash.)
     let mut kernel = [(0u32, 0.0f32); MAX_TARGETS];
     let mut reaches = [0u32; 128];
