@@ -38,15 +38,8 @@ impl<const D: usize> Lanes<D> {
         let (blocks, tail) = self.0.as_chunks_mut::<4>();
         let (words, tail_codes) = codes.as_chunks::<4>();
         let bad = add_blocks(blocks, words);
-        let mut ok = bad & 0x8080_8080 == 0;
-        for (t, &c) in tail.iter_mut().zip(tail_codes) {
-            ok &= c != i8::MIN;
-            let [s, lo, hi] = t;
-            *s = s.wrapping_add(c as i16 as u16);
-            let q = word(*lo, *hi).wrapping_add(square(i32::from(c)));
-            (*lo, *hi) = (q as u16, (q >> 16) as u16);
-        }
-        ok
+        let tail_ok = step_tail(tail, tail_codes, true);
+        bad & 0x8080_8080 == 0 && tail_ok
     }
 
     /// [`Self::add`] as one function with its loop rolled, for the paths that are not per point (flash: the
@@ -56,15 +49,8 @@ impl<const D: usize> Lanes<D> {
         let (blocks, tail) = self.0.as_chunks_mut::<4>();
         let (words, tail_codes) = codes.as_chunks::<4>();
         let bad = add_blocks(blocks, core::hint::black_box(words));
-        let mut ok = bad & 0x8080_8080 == 0;
-        for (t, &c) in tail.iter_mut().zip(tail_codes) {
-            ok &= c != i8::MIN;
-            let [s, lo, hi] = t;
-            *s = s.wrapping_add(c as i16 as u16);
-            let q = word(*lo, *hi).wrapping_add(square(i32::from(c)));
-            (*lo, *hi) = (q as u16, (q >> 16) as u16);
-        }
-        ok
+        let tail_ok = step_tail(tail, tail_codes, true);
+        bad & 0x8080_8080 == 0 && tail_ok
     }
 
     /// Take one point's codes out again (what [`Self::add`] added): integer sums wrap back exactly. Runs
@@ -74,12 +60,7 @@ impl<const D: usize> Lanes<D> {
         let (blocks, tail) = self.0.as_chunks_mut::<4>();
         let (words, tail_codes) = codes.as_chunks::<4>();
         sub_blocks(blocks, core::hint::black_box(words));
-        for (t, &c) in tail.iter_mut().zip(tail_codes) {
-            let [s, lo, hi] = t;
-            *s = s.wrapping_sub(c as i16 as u16);
-            let q = word(*lo, *hi).wrapping_sub(square(i32::from(c)));
-            (*lo, *hi) = (q as u16, (q >> 16) as u16);
-        }
+        step_tail(tail, tail_codes, false);
     }
 
     /// Σc of dimension `i` (0 beyond `D`).
@@ -128,6 +109,27 @@ impl<const D: usize> Lanes<D> {
                 .map(|&[s, lo, hi]| (i32::from(s as i16), word(lo, hi))),
         )
     }
+}
+
+/// Add (or, with `add` false, take out) the codes of the `D mod 4` last dimensions, each kept as Σc (16
+/// bits) and Σc² (two halves of a word); returns whether none of them is −128. Empty at D = 64.
+#[inline(always)]
+fn step_tail(tail: &mut [[u16; 3]], codes: &[i8], add: bool) -> bool {
+    let mut ok = true;
+    for (t, &c) in tail.iter_mut().zip(codes) {
+        ok &= c != i8::MIN;
+        let [s, lo, hi] = t;
+        let (dc, dq) = (c as i16 as u16, square(i32::from(c)));
+        let q = word(*lo, *hi);
+        let (s2, q2) = if add {
+            (s.wrapping_add(dc), q.wrapping_add(dq))
+        } else {
+            (s.wrapping_sub(dc), q.wrapping_sub(dq))
+        };
+        *s = s2;
+        (*lo, *hi) = (q2 as u16, (q2 >> 16) as u16);
+    }
+    ok
 }
 
 /// The six words of a block (the module's layout), as the DSP instructions see them in memory.
