@@ -90,7 +90,10 @@ fn explorer(planner: Planner, horizon: usize, budget: f32) -> Explorer {
         seed: 1,
         budget,
         utility_offset: UTILITY_OFFSET_M,
+        discount: 0.0,
         horizon,
+        replan: false,
+        rooms: false,
     }
 }
 

@@ -20,6 +20,9 @@ pub struct ExploreArgs {
     /// Runs per explorer (seeds 1..=N of the camera's pixel sampling, the encoder noise and random choice).
     #[arg(long, default_value_t = 3)]
     pub seeds: u64,
+    /// The first seed (seeds S..S+N-1): another set of seeds measures how much a house's figures move.
+    #[arg(long, default_value_t = 1)]
+    pub first_seed: u64,
     /// Seed of the house layout.
     #[arg(long, default_value_t = 1, conflicts_with = "layouts")]
     pub layout_seed: u64,
@@ -30,6 +33,17 @@ pub struct ExploreArgs {
     /// Information gain's utility is score / (path + this many metres).
     #[arg(long, default_value_t = UTILITY_OFFSET_M)]
     pub utility_offset: f32,
+    /// Information gain's distance discount per metre: utility score · e^(−discount · path) instead of
+    /// score / (path + offset) (0: off).
+    #[arg(long, default_value_t = 0.0)]
+    pub discount: f32,
+    /// Information gain chooses again at every frame on the way (every 0.5 m), not only on arrival.
+    #[arg(long)]
+    pub replan: bool,
+    /// Information gain takes the best view in the first room of the best tour of the house's rooms, each
+    /// room worth its views' summed score.
+    #[arg(long)]
+    pub rooms: bool,
     /// Information gain plans tours of this many views and drives to the first (1: the best single view).
     #[arg(long, default_value_t = 1)]
     pub horizon: usize,
@@ -59,6 +73,9 @@ pub fn explore(args: &ExploreArgs) -> Result<()> {
     }
     if !(args.utility_offset > 0.0 && args.utility_offset.is_finite()) {
         anyhow::bail!("--utility-offset must be a positive number of metres");
+    }
+    if !(args.discount >= 0.0 && args.discount.is_finite()) {
+        anyhow::bail!("--discount must be a non-negative number per metre");
     }
     if !(1..=4).contains(&args.horizon) {
         anyhow::bail!("--horizon must be 1 to 4 views");
@@ -94,7 +111,8 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
     let truth = Truth::from_loop(&scene, &config).thinned(4);
     let world = World::new(scene, &config, DepthCamera::default().pixels_per_frame)?;
     let mut runs: Vec<Vec<Vec<Sample>>> = vec![Vec::new(); Planner::ALL.len()];
-    for seed in 1..=args.seeds {
+    let seeds = args.first_seed..args.first_seed.saturating_add(args.seeds);
+    for seed in seeds.clone() {
         let setup = Setup {
             seed,
             ..Setup::default()
@@ -111,7 +129,10 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
                             seed,
                             budget: args.budget,
                             utility_offset: args.utility_offset,
+                            discount: args.discount,
                             horizon: args.horizon,
+                            replan: args.replan,
+                            rooms: args.rooms,
                         };
                         let kept = (p != Planner::InformationGain)
                             .then_some(args.baselines.as_deref())
@@ -159,12 +180,16 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
         .map(|r| mean_curve(r, &grid, |s| s.miou))
         .collect();
     println!(
-        "explore: house {} ({} ground-truth voxels, {} candidate views), budget {} m, {} seeds",
+        "explore: house {} ({} ground-truth voxels, {} candidate views), budget {} m, {}",
         layout,
         truth.len(),
         world.views.len(),
         args.budget,
-        args.seeds
+        if args.first_seed == 1 {
+            format!("{} seeds", args.seeds)
+        } else {
+            format!("seeds {}–{}", seeds.start, seeds.end - 1)
+        }
     );
     for (i, p) in Planner::ALL.iter().enumerate() {
         let frames: f64 = runs[i]
@@ -186,6 +211,9 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
             driven
         );
     }
+    if args.seeds > 1 {
+        println!("{}", per_seed(&grid, &runs));
+    }
     let (line, outcome) = headline(layout, &grid, &acc, &runs[1]);
     println!("{line}");
     let path = args.out.join(png);
@@ -205,11 +233,7 @@ fn headline(
 ) -> (String, Outcome) {
     let (ig, random, frontier) = (&acc[0], &acc[1], &acc[2]);
     let target = random.last().copied().unwrap_or(0.0);
-    let random_distance = random_runs
-        .iter()
-        .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
-        .sum::<f64>()
-        / random_runs.len().max(1) as f64;
+    let random_distance = mean_distance(random_runs);
     match ig.iter().position(|&a| a >= target) {
         Some(i) => {
             let share = f64::from(grid[i]) / random_distance.max(1e-9);
@@ -249,6 +273,47 @@ fn headline(
     }
 }
 
+/// The mean distance at the end of `runs`.
+fn mean_distance(runs: &[Vec<Sample>]) -> f64 {
+    runs.iter()
+        .map(|r| f64::from(r.last().map_or(0.0, |s| s.distance)))
+        .sum::<f64>()
+        / runs.len().max(1) as f64
+}
+
+/// Where each seed's information-gain run reaches the same seed's random final accuracy, as a share of that
+/// random run's distance, and their median: how much one house's figure moves between seeds.
+fn per_seed(grid: &[f32], runs: &[Vec<Vec<Sample>>]) -> String {
+    let mut shares: Vec<f64> = (0..runs[0].len())
+        .map(|k| {
+            let ig = mean_curve(&runs[0][k..=k], grid, |s| s.accuracy);
+            let random = &runs[1][k..=k];
+            let target = random[0].last().map_or(0.0, |s| s.accuracy);
+            ig.iter()
+                .position(|&a| a >= target)
+                .map_or(f64::INFINITY, |i| {
+                    f64::from(grid[i]) / mean_distance(random).max(1e-9)
+                })
+        })
+        .collect();
+    let each: Vec<String> = shares.iter().map(|&s| pct(s)).collect();
+    shares.sort_by(f64::total_cmp);
+    format!(
+        "  per seed: information gain reaches that seed's random final accuracy at {} of its distance (median {})",
+        each.join(", "),
+        pct(shares[shares.len() / 2])
+    )
+}
+
+/// A share as a whole percentage, or "never".
+fn pct(s: f64) -> String {
+    if s.is_finite() {
+        format!("{:.0} %", 100.0 * s)
+    } else {
+        "never".to_string()
+    }
+}
+
 /// One line over several houses: how many meet the goal (≤ 60 % of random's distance, ahead of
 /// nearest-frontier there), the median and worst share.
 fn summary(outcomes: &[Outcome]) -> String {
@@ -270,13 +335,6 @@ fn summary(outcomes: &[Outcome]) -> String {
                 .total_cmp(&b.share.unwrap_or(f64::INFINITY))
         })
         .map_or(0, |o| o.layout);
-    let pct = |s: f64| {
-        if s.is_finite() {
-            format!("{:.0} %", 100.0 * s)
-        } else {
-            "never".to_string()
-        }
-    };
     let ahead = outcomes.iter().filter(|o| o.lead > 0.0).count();
     format!(
         "exploration over {} houses: information gain reaches random's final accuracy within 60 % of its distance and ahead of nearest-frontier there on {} of {}; share of random's distance median {}, worst {} (house {}); ahead of nearest-frontier on {}",

@@ -23,6 +23,7 @@
 //! voxel the map cannot answer is wrong.
 
 mod command;
+mod rooms;
 mod tour;
 mod truth;
 pub mod world;
@@ -105,10 +106,22 @@ struct Robot<'a> {
     frame: u32,
     travelled: f32,
     utility_offset: f32,
+    discount: f32,
     horizon: usize,
+    rooms: bool,
 }
 
 impl Robot<'_> {
+    /// Information gain's utility of a view of `score` at `path` metres: score / (path + offset), or with a
+    /// distance discount score · e^(−discount · path) (Bircher et al. 2016).
+    fn utility(&self, score: f32, path: f32) -> f32 {
+        if self.discount > 0.0 {
+            score * (-self.discount * path).exp()
+        } else {
+            score / (path + self.utility_offset)
+        }
+    }
+
     fn capture(&mut self, pose: &Isometry3<f32>) {
         let points: Vec<LabelledPoint> =
             self.camera.capture(&self.world.scene, pose, &mut self.rng);
@@ -177,10 +190,9 @@ impl Robot<'_> {
             Planner::Random => {
                 Some(options[(self.rng.next_u64() % options.len() as u64) as usize].0)
             }
+            Planner::InformationGain if self.rooms => self.choose_room_tour(&options),
             Planner::InformationGain if self.horizon > 1 => self.choose_tour(&options, left),
-            Planner::InformationGain => {
-                best_by(&|(_, fp, d)| self.score(fp) / (d + self.utility_offset))
-            }
+            Planner::InformationGain => best_by(&|(_, fp, d)| self.utility(self.score(fp), *d)),
             Planner::NearestFrontier => {
                 let frontier = options
                     .iter()
@@ -206,8 +218,15 @@ pub struct Explorer {
     pub budget: f32,
     /// Information gain's utility: score / (path + this many metres).
     pub utility_offset: f32,
+    /// Information gain's distance discount per metre: utility score · e^(−discount · path) instead of
+    /// score / (path + offset) (0: off).
+    pub discount: f32,
     /// Information gain plans tours of this many views (1: the best single view).
     pub horizon: usize,
+    /// Information gain chooses again at every frame on the way (not only on arrival).
+    pub replan: bool,
+    /// Information gain takes the best view in the first room of the best tour of rooms (`rooms.rs`).
+    pub rooms: bool,
 }
 
 /// Run one explorer until its distance budget is spent; the accuracy after every frame (those along the
@@ -224,8 +243,12 @@ pub fn run(
         seed,
         budget,
         utility_offset,
+        discount,
         horizon,
+        replan,
+        rooms,
     } = *explorer;
+    let replan = replan && planner == Planner::InformationGain;
     let mut robot = Robot {
         world,
         dec,
@@ -239,7 +262,9 @@ pub fn run(
         frame: 0,
         travelled: 0.0,
         utility_offset,
+        discount,
         horizon,
+        rooms,
     };
     let mut here = world
         .nearest_free(world.scene.room_centre(0))
@@ -258,7 +283,7 @@ pub fn run(
         yaw: 0.0,
     }));
     let mut samples = vec![measure(&robot)];
-    loop {
+    'choice: loop {
         let (dist, prev) = world.distances(here);
         let Some(goal) = robot.choose(planner, &dist, here, budget) else {
             break;
@@ -272,6 +297,10 @@ pub fn run(
                 let yaw = (to[1] - from[1]).atan2(to[0] - from[0]);
                 robot.capture(&world.pose(View { cell: c, yaw }));
                 samples.push(measure(&robot));
+                if replan {
+                    here = c;
+                    continue 'choice;
+                }
             }
             from = to;
         }
