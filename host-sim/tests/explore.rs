@@ -94,6 +94,7 @@ fn explorer(planner: Planner, horizon: usize, budget: f32) -> Explorer {
         horizon,
         replan: false,
         rooms: false,
+        surface_only: false,
     }
 }
 
@@ -103,11 +104,21 @@ fn short_runs_stay_in_budget_and_learn() {
     let explorers = [
         explorer(Planner::InformationGain, 1, 5.0),
         explorer(Planner::InformationGain, 2, 5.0),
+        Explorer {
+            discount: 0.2,
+            replan: true,
+            ..explorer(Planner::InformationGain, 1, 5.0)
+        },
+        Explorer {
+            rooms: true,
+            surface_only: true,
+            ..explorer(Planner::InformationGain, 1, 5.0)
+        },
         explorer(Planner::Random, 1, 5.0),
         explorer(Planner::NearestFrontier, 1, 5.0),
     ];
     for e in &explorers {
-        let name = format!("{} (horizon {})", e.planner.name(), e.horizon);
+        let name = format!("{e:?}");
         let samples = run(&world, &dec, &truth, &config, e).unwrap();
         assert!(samples.len() >= 3, "{name}: {} samples", samples.len());
         assert!(samples.windows(2).all(|w| w[0].distance <= w[1].distance));
@@ -155,4 +166,21 @@ fn the_mean_curve_holds_the_last_value_within_each_distance() {
     for (a, b) in c.iter().zip(want) {
         assert!((a - b).abs() < 1e-12, "{c:?}");
     }
+}
+
+#[test]
+fn the_utility_prefers_more_gain_and_less_driving() {
+    use host_sim::explore::utility;
+    for discount in [0.0, 0.2] {
+        let u = |score, path| utility(score, path, UTILITY_OFFSET_M, discount);
+        // The same drive: the view that would teach more wins; the same gain: the nearer view wins.
+        assert!(u(200.0, 2.0) > u(100.0, 2.0), "discount {discount}");
+        assert!(u(100.0, 1.0) > u(100.0, 6.0), "discount {discount}");
+        // A view next to the robot is not free (offset), and enough gain is worth a drive.
+        assert!(u(400.0, 5.0) > u(100.0, 0.0), "discount {discount}");
+        assert!(u(100.0, 0.0).is_finite());
+    }
+    // The rate: twice the gain is worth exactly the drive that doubles path + offset (1 m → 2 m + offset).
+    let r = |score, path| utility(score, path, UTILITY_OFFSET_M, 0.0);
+    assert!((r(200.0, UTILITY_OFFSET_M + 2.0) - r(100.0, 1.0)).abs() < 1e-4);
 }

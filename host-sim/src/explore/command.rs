@@ -44,6 +44,10 @@ pub struct ExploreArgs {
     /// room worth its views' summed score.
     #[arg(long)]
     pub rooms: bool,
+    /// Information gain scores only the voxels that hold a surface some candidate view sees (not the air
+    /// the kernel reaches).
+    #[arg(long)]
+    pub surface: bool,
     /// Information gain plans tours of this many views and drives to the first (1: the best single view).
     #[arg(long, default_value_t = 1)]
     pub horizon: usize,
@@ -133,6 +137,7 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
                             horizon: args.horizon,
                             replan: args.replan,
                             rooms: args.rooms,
+                            surface_only: args.surface,
                         };
                         let kept = (p != Planner::InformationGain)
                             .then_some(args.baselines.as_deref())

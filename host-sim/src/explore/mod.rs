@@ -77,6 +77,16 @@ pub const UTILITY_OFFSET_M: f32 = 3.0;
 /// A view is a frontier if at least this share of the voxels it would hit are unknown.
 const FRONTIER_SHARE: f32 = 0.2;
 
+/// Information gain's utility of a view of `score` at `path` metres of driving: score / (path + offset), or
+/// with a distance discount (> 0, per metre) score · e^(−discount · path) (Bircher et al. 2016).
+pub fn utility(score: f32, path: f32, offset: f32, discount: f32) -> f32 {
+    if discount > 0.0 {
+        score * (-discount * path).exp()
+    } else {
+        score / (path + offset)
+    }
+}
+
 /// One measurement along a run.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample {
@@ -109,17 +119,12 @@ struct Robot<'a> {
     discount: f32,
     horizon: usize,
     rooms: bool,
+    surface_only: bool,
 }
 
 impl Robot<'_> {
-    /// Information gain's utility of a view of `score` at `path` metres: score / (path + offset), or with a
-    /// distance discount score · e^(−discount · path) (Bircher et al. 2016).
     fn utility(&self, score: f32, path: f32) -> f32 {
-        if self.discount > 0.0 {
-            score * (-self.discount * path).exp()
-        } else {
-            score / (path + self.utility_offset)
-        }
+        utility(score, path, self.utility_offset, self.discount)
     }
 
     fn capture(&mut self, pose: &Isometry3<f32>) {
@@ -155,6 +160,7 @@ impl Robot<'_> {
     fn score(&self, fp: &world::Footprint) -> f32 {
         fp.slot_weights
             .iter()
+            .filter(|&&(s, _)| !self.surface_only || self.world.surface[s as usize])
             .map(|&(s, w)| voxel_gain(self.prior_lambda + self.seen[s as usize], w))
             .sum()
     }
@@ -227,6 +233,8 @@ pub struct Explorer {
     pub replan: bool,
     /// Information gain takes the best view in the first room of the best tour of rooms (`rooms.rs`).
     pub rooms: bool,
+    /// Information gain scores only voxels that hold a surface some candidate view sees.
+    pub surface_only: bool,
 }
 
 /// Run one explorer until its distance budget is spent; the accuracy after every frame (those along the
@@ -247,6 +255,7 @@ pub fn run(
         horizon,
         replan,
         rooms,
+        surface_only,
     } = *explorer;
     let replan = replan && planner == Planner::InformationGain;
     let mut robot = Robot {
@@ -265,6 +274,7 @@ pub fn run(
         discount,
         horizon,
         rooms,
+        surface_only,
     };
     let mut here = world
         .nearest_free(world.scene.room_centre(0))

@@ -69,6 +69,8 @@ pub struct World {
     pub views: Vec<(View, Footprint)>,
     /// A dense index of every voxel some candidate view would reach.
     pub slots: FxHashMap<VoxelKey, u32>,
+    /// By slot: whether some candidate view's rays hit the voxel (it holds a surface the views can see).
+    pub surface: Vec<bool>,
 }
 
 impl World {
@@ -112,6 +114,7 @@ impl World {
             free,
             views: Vec::new(),
             slots: FxHashMap::default(),
+            surface: Vec::new(),
         };
         let camera = DepthCamera {
             pixels_per_frame: pixels,
@@ -143,6 +146,12 @@ impl World {
             };
             fp.slot_weights = fp.weights.iter().map(|&(k, w)| (slot(k), w)).collect();
             fp.hit_slots = fp.hits.iter().map(|&k| slot(k)).collect();
+        }
+        world.surface = vec![false; slots.len()];
+        for (_, fp) in &world.views {
+            for &s in &fp.hit_slots {
+                world.surface[s as usize] = true;
+            }
         }
         world.slots = slots;
         Ok(world)
