@@ -16,7 +16,9 @@
 //! hit have no point within the kernel's reach yet (the classic frontier: the edge of the known map).
 //! **Random** takes any candidate within the remaining budget. **Information gain** takes the candidate of
 //! highest score / (path + 3 m), or with `--horizon N` the first stop of the best tour of N views
-//! (`tour.rs`).
+//! (`tour.rs`). Other designs, measured and not the default (docs/numbers.md): `--discount` (score ·
+//! e^(−λ·path)), `--replan` (choose again at every frame on the way), `--rooms` (`rooms.rs`), `--surface`
+//! (score surface voxels only).
 //!
 //! Accuracy and mIoU are those of the tables, on a fixed set of ground-truth voxels: every surface voxel the
 //! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
