@@ -31,7 +31,11 @@ impl<const D: usize> Acc<D> {
     pub(super) fn add_f32(&mut self, y: &[f32; D], scale: f32) {
         self.make_float(scale);
         if let Self::Float(o) = self {
-            o.add_point(y);
+            if o.is_empty() {
+                o.set_point(y); // what `clear` left is stale beyond the count: overwritten, not read
+            } else {
+                o.add_point(y);
+            }
         }
     }
 
@@ -57,11 +61,13 @@ impl<const D: usize> Acc<D> {
     }
 
     /// Hold nothing, for the voxel's next visit, in place: the sums stay sums (zeroed where they lie: a
-    /// `memclr`, no 516-byte value built and copied in), so an int8 voxel's first point only adds.
+    /// `memclr`, no 516-byte value built and copied in), so an int8 voxel's first point only adds. f32
+    /// statistics drop their count alone: every reader goes by it (an empty set is merged, decayed and
+    /// cooled as nothing) and the first point overwrites the rest ([`ObsStats::set_point`]).
     pub(super) fn clear(&mut self) {
         match self {
             Self::Codes(c) => *c = CodeSums::EMPTY,
-            Self::Float(o) => *o = ObsStats::EMPTY,
+            Self::Float(o) => o.count = 0.0,
         }
     }
 
@@ -109,7 +115,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
             // the mean is weighed first (below).
-            (Acc::Float(o), false) if !weighed => {
+            (Acc::Float(o), false) if !weighed && !o.is_empty() => {
                 slot.codes = slot.codes.reencode(o, &mut self.dither)
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
