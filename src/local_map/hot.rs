@@ -116,7 +116,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
             // the mean is weighed first (below).
             (Acc::Float(o), false) if !weighed && !o.is_empty() => {
-                slot.codes = slot.codes.reencode(o, &mut self.dither)
+                slot.codes.reencode_here(o, &mut self.dither)
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
@@ -135,9 +135,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                 }
                 acc.merge_into(&mut self.scratch, self.int8_scale);
                 self.mean_weights.apply(&mut self.scratch.mean, true);
-                slot.codes =
-                    self.mean_weights
-                        .reencode(&slot.codes, &self.scratch, &mut self.dither);
+                self.mean_weights
+                    .reencode(&mut slot.codes, &self.scratch, &mut self.dither);
             }
             _ => {}
         }
