@@ -54,7 +54,10 @@ fn demo_with_back_channel_loses_nothing_within_its_byte_budget() {
     assert_eq!(lost, 0, "{stdout}");
     assert!(sent > 100_000, "{stdout}");
     // The built-in tile fits the robot's map and link: it takes every point.
-    let refused = line(&stdout, "points the robot's map refused (counted, never sent): ");
+    let refused = line(
+        &stdout,
+        "points the robot's map refused (counted, never sent): ",
+    );
     assert!(refused.starts_with("0 ("), "{refused}\n{stdout}");
     let bytes = number(line(&stdout, "wire bytes per integrated point: "));
     assert!(
