@@ -83,6 +83,17 @@ impl<const D: usize> ObsStats<D> {
         }
     }
 
+    /// Start afresh with `y` alone (n = 1, m = y, S = 0): what [`Self::add_point`] makes of an empty set
+    /// (equal to it, the sign of a zero mean aside), written without reading the old values. So a reused
+    /// hot entry of the local map is reset by its count alone, and its first point is a copy instead of a
+    /// 516-byte clear and a Welford step (on a sparse sensor most hot entries take one point).
+    #[inline]
+    pub fn set_point(&mut self, y: &[f32; D]) {
+        self.count = 1.0;
+        self.mean = *y;
+        self.scatter = [0.0; D];
+    }
+
     /// Merge another set of observations whose weights (count and scatter) are multiplied by `k`: the set
     /// seen through one kernel weight. `k · other.count ≤ 0` (or NaN) changes nothing.
     #[inline]

@@ -105,7 +105,7 @@ fn floor_row(name: &str, s: usize) {
         seq.len(),
         per_k(distinct)
     );
-    for h in [8, 32, 128, 254] {
+    for h in [8, 32, 128, 144, 160, 192, 254] {
         print!(" {:.0} |", per_k(belady_misses(&seq, h)));
     }
     println!();
@@ -142,10 +142,13 @@ fn main() {
     row::<32>();
     row::<64>();
     row::<128>();
+    row::<144>();
+    row::<160>();
+    row::<192>();
     row::<254>();
     println!();
-    println!("| pattern | points | distinct voxels | first visits per 1,000 points (any H) | fewest coolings per 1,000 points, any policy (Belady): H = 8 | 32 | 128 | 254 |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| pattern | points | distinct voxels | first visits per 1,000 points (any H) | fewest coolings per 1,000 points, any policy (Belady): H = 8 | 32 | 128 | 144 | 160 | 192 | 254 |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     floor_row("depth frames", 1);
     floor_row("8×8 ToF", named("tof_f3"));
     floor_row("2D LiDAR", named("lidar_f3"));

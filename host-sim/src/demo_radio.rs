@@ -140,6 +140,8 @@ struct RobotAccount {
     /// Its link counters.
     stats: latentbki::wire::LinkStats,
     resent_bytes: u64,
+    /// Points its map refused (counted by reason; e.g. no room while the link could not keep up).
+    refused: latentbki::RejectionCounts,
 }
 
 /// The air between robot and base station, the base station, and the account of the run.
@@ -263,6 +265,7 @@ impl DemoRadio {
             voxels,
             stats: robot.encoder().stats(),
             resent_bytes: u64::from(robot.encoder().resent_bytes()),
+            refused: robot.map().rejections(),
         });
     }
 
@@ -363,6 +366,14 @@ impl DemoRadio {
             f64::from(robot.voxels) / self.base.map().map_or(1, |m| m.len().max(1)) as f64,
             robot.voxels,
             self.base.map().map_or(0, |m| m.len()),
+        );
+        let r = robot.refused;
+        out += &format!(
+            "points the robot's map refused (counted, never sent): {} (no room {}, outside its window {}, bad input {})\n",
+            r.total(),
+            r.no_room,
+            r.outside_window,
+            r.total() - r.no_room - r.outside_window
         );
         let c = self.config.codec;
         out += &if c.is_rice() {

@@ -53,6 +53,12 @@ fn demo_with_back_channel_loses_nothing_within_its_byte_budget() {
     let (lost, sent) = lost_of(line(&stdout, "points lost on the link: "));
     assert_eq!(lost, 0, "{stdout}");
     assert!(sent > 100_000, "{stdout}");
+    // The built-in tile fits the robot's map and link: it takes every point.
+    let refused = line(
+        &stdout,
+        "points the robot's map refused (counted, never sent): ",
+    );
+    assert!(refused.starts_with("0 ("), "{refused}\n{stdout}");
     let bytes = number(line(&stdout, "wire bytes per integrated point: "));
     assert!(
         bytes > 1.0 && bytes <= 14.0,

@@ -425,6 +425,40 @@ fn user_and_reserved_classes_get_a_name_and_a_file_without_crs_is_metres() {
     assert!(vocab.class_embeddings(&["klass 64"]).is_err());
 }
 
+#[test]
+fn an_unclassified_survey_loads_and_says_its_accuracy_means_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("raw.las");
+    // Codes 0 and 1 are both "unclassified": one class, as a raw survey delivers it.
+    let points: Vec<(f64, f64, f64, u8)> = (0..300)
+        .map(|i| {
+            (
+                f64::from(i % 20),
+                f64::from(i / 20),
+                0.0,
+                [0, 1][i as usize % 2],
+            )
+        })
+        .collect();
+    write_las(&path, &points, None);
+    let t = Tile::from_path(&path, None).unwrap();
+    assert_eq!(t.names, ["unclassified"]);
+    assert!(
+        t.summary().contains("one class only (unclassified)"),
+        "{}",
+        t.summary()
+    );
+    // Two classes: no such note.
+    let two: Vec<(f64, f64, f64, u8)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, &(x, y, z, _))| (x, y, z, [1, 2][i % 2]))
+        .collect();
+    write_las(&path, &two, None);
+    let t = Tile::from_path(&path, None).unwrap();
+    assert!(!t.summary().contains("one class only"), "{}", t.summary());
+}
+
 const NEBRASKA_FTUS: &str = r#"PROJCS["NAD83(2011) / Nebraska (ftUS)",GEOGCS["NAD83(2011)",DATUM["NAD83_National_Spatial_Reference_System_2011",SPHEROID["GRS 1980",6378137,298.257222101]],UNIT["degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic_2SP"],UNIT["US survey foot",0.304800609601219,AUTHORITY["EPSG","9003"]],AUTHORITY["EPSG","6517"]]"#;
 
 fn run(args: &[&std::ffi::OsStr]) -> (bool, String, String) {

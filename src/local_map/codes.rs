@@ -38,11 +38,11 @@ impl Weights {
     #[inline(always)]
     pub(super) fn reencode<const D: usize, const P: usize>(
         &self,
-        codes: &crate::quant::QuantVoxel<D, P>,
+        codes: &mut crate::quant::QuantVoxel<D, P>,
         stats: &crate::obs::ObsStats<D>,
         dither: &mut crate::quant::Dither,
-    ) -> crate::quant::QuantVoxel<D, P> {
-        codes.reencode(stats, dither)
+    ) {
+        codes.reencode_here(stats, dither)
     }
 }
 

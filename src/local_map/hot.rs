@@ -29,9 +29,16 @@ impl<const D: usize> Acc<D> {
     /// Add an f32 feature.
     #[inline]
     pub(super) fn add_f32(&mut self, y: &[f32; D], scale: f32) {
-        self.make_float(scale);
-        if let Self::Float(o) = self {
-            o.add_point(y);
+        match self {
+            // What `clear` left is stale beyond the count: overwritten, not read.
+            Self::Float(o) if o.is_empty() => o.set_point(y),
+            Self::Float(o) => o.add_point(y),
+            Self::Codes(_) => {
+                self.make_float(scale);
+                if let Self::Float(o) = self {
+                    o.add_point(y);
+                }
+            }
         }
     }
 
@@ -57,15 +64,20 @@ impl<const D: usize> Acc<D> {
     }
 
     /// Hold nothing, for the voxel's next visit, in place: the sums stay sums (zeroed where they lie: a
-    /// `memclr`, no 516-byte value built and copied in), so an int8 voxel's first point only adds.
+    /// `memclr`, no 516-byte value built and copied in), so an int8 voxel's first point only adds. f32
+    /// statistics drop their count alone: every reader goes by it (an empty set is merged, decayed and
+    /// cooled as nothing) and the first point overwrites the rest ([`ObsStats::set_point`]).
     pub(super) fn clear(&mut self) {
         match self {
             Self::Codes(c) => *c = CodeSums::EMPTY,
-            Self::Float(o) => *o = ObsStats::EMPTY,
+            Self::Float(o) => o.count = 0.0,
         }
     }
 
-    /// Turn integer sums into f32 statistics.
+    /// Turn integer sums into f32 statistics. Out of line: rare (a voxel that takes both kinds, or fades),
+    /// and each inlined copy kept a 516-byte temporary in its caller's frame (the forgetting build's stack
+    /// went over 8 KiB by 80 B with one copy more).
+    #[inline(never)]
     pub(super) fn make_float(&mut self, scale: f32) {
         if let Self::Codes(c) = self {
             *self = Self::Float(c.to_obs(scale));
@@ -109,8 +121,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
             // the mean is weighed first (below).
-            (Acc::Float(o), false) if !weighed => {
-                slot.codes = slot.codes.reencode(o, &mut self.dither)
+            (Acc::Float(o), false) if !weighed && !o.is_empty() => {
+                slot.codes.reencode_here(o, &mut self.dither)
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
@@ -129,9 +141,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                 }
                 acc.merge_into(&mut self.scratch, self.int8_scale);
                 self.mean_weights.apply(&mut self.scratch.mean, true);
-                slot.codes =
-                    self.mean_weights
-                        .reencode(&slot.codes, &self.scratch, &mut self.dither);
+                self.mean_weights
+                    .reencode(&mut slot.codes, &self.scratch, &mut self.dither);
             }
             _ => {}
         }
@@ -257,5 +268,51 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             }
         }
         e.stamp = now;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Acc;
+    use crate::obs::ObsStats;
+
+    /// A reused f32 entry is reset by its count alone: its next points must give what a fresh entry gives
+    /// (the stale mean and scatter never read), and an emptied one must merge and cool as nothing.
+    #[test]
+    fn a_cleared_entry_forgets_its_old_points() {
+        const D: usize = 8;
+        let y = |k: f32| core::array::from_fn::<f32, D, _>(|i| (i as f32 - 3.5) * k + 0.25 * k * k);
+        let mut reused = Acc::<D>::Float(ObsStats::EMPTY);
+        for k in [3.0, -7.5, 120.0] {
+            reused.add_f32(&y(k), 1.0);
+        }
+        reused.clear();
+        assert!(reused.is_empty() && reused.points() == 0.0);
+        let mut merged = ObsStats::<D>::EMPTY;
+        reused.merge_into(&mut merged, 1.0);
+        assert_eq!(
+            merged,
+            ObsStats::EMPTY,
+            "an emptied entry merges as nothing"
+        );
+        let mut fresh = Acc::<D>::Float(ObsStats::EMPTY);
+        for k in [0.5, -2.0, 0.0, 9.0] {
+            reused.add_f32(&y(k), 1.0);
+            fresh.add_f32(&y(k), 1.0);
+        }
+        let (mut a, mut b) = (ObsStats::<D>::EMPTY, ObsStats::<D>::EMPTY);
+        reused.merge_into(&mut a, 1.0);
+        fresh.merge_into(&mut b, 1.0);
+        assert_eq!(a, b);
+        // The first point alone: what Welford's step makes of an empty set (n = 1, m = y, S = 0).
+        let mut one = ObsStats::<D>::EMPTY;
+        one.add_point(&y(-4.0));
+        let mut set = ObsStats::<D> {
+            count: 0.0,
+            mean: [9.0; D],
+            scatter: [5.0; D],
+        };
+        set.set_point(&y(-4.0));
+        assert_eq!(set, one);
     }
 }

@@ -142,19 +142,20 @@ impl MeanWeights {
 
 #[cfg(feature = "mean-weights")]
 impl MeanWeights {
-    /// Codes of a weighed mean: [`super::QuantVoxel::reencode_fine`] (the finer grid) unless every weight
-    /// is 1, where the codes stay those of [`super::QuantVoxel::reencode`], bit for bit.
+    /// Re-encode `codes` in place for a weighed mean: [`super::QuantVoxel::reencode_fine`] (the finer
+    /// grid) unless every weight is 1, where the codes stay those of [`super::QuantVoxel::reencode`], bit
+    /// for bit.
     #[inline]
     pub(crate) fn reencode<const D: usize, const P: usize>(
         &self,
-        codes: &super::QuantVoxel<D, P>,
+        codes: &mut super::QuantVoxel<D, P>,
         stats: &crate::obs::ObsStats<D>,
         dither: &mut super::Dither,
-    ) -> super::QuantVoxel<D, P> {
+    ) {
         if self.is_ones() {
-            codes.reencode(stats, dither)
+            codes.reencode_here(stats, dither)
         } else {
-            codes.reencode_fine(stats, dither)
+            codes.reencode_fine_here(stats, dither)
         }
     }
 }

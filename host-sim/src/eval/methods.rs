@@ -73,6 +73,11 @@ pub trait Mapper: Send {
     }
     /// End of the run (after the last frame was integrated and scored): a robot streams what it still holds.
     fn finish(&mut self, _decoder: &Decoder) {}
+    /// Points its map refused, by reason: the robot's `Mapper` counts every point it does not take (the
+    /// host maps take every point the evaluation hands them).
+    fn refused(&self) -> Option<latentbki::RejectionCounts> {
+        None
+    }
 }
 
 fn key_of(position: [f32; 3], config: &MapConfig) -> Option<VoxelKey> {
@@ -453,6 +458,9 @@ impl Mapper for OnDevice {
     }
     fn snapshot(&self) -> Vec<(VoxelKey, VoxelStats<D>)> {
         self.observation_map().posteriors_sorted()
+    }
+    fn refused(&self) -> Option<latentbki::RejectionCounts> {
+        Some(self.robot.map().rejections())
     }
     fn finish(&mut self, decoder: &Decoder) {
         // Stream what the robot still holds: its last word on every voxel.

@@ -175,6 +175,15 @@ pub fn run(
             100.0 * r.confusion.miou_authors()
         );
     }
+    for r in &results {
+        if let Some(note) = r
+            .mapper
+            .refused()
+            .and_then(|c| refusal_note(&r.method.label(), &c, integrated))
+        {
+            md += &note;
+        }
+    }
     md += &super::tables::iou_table(&dec.classes, &results);
     md += &format!(
         "\nUncertainty of LatentBKI (f = {f}) vs error, {} held-out points with λ > 2 — AUSE (lower is better; accuracy / mIoU points). Sampling: {} draws, variance of the predicted class's score:\n\n| Uncertainty | AUSE acc. | AUSE mIoU |\n|---|---:|---:|\n",
@@ -213,4 +222,73 @@ pub fn run(
         figures: figs,
         hint,
     })
+}
+
+/// One line for a method whose map refused points: how many, why, and what lowers the load. `None` when it
+/// took every point.
+fn refusal_note(label: &str, c: &latentbki::RejectionCounts, handed: usize) -> Option<String> {
+    if c.total() == 0 {
+        return None;
+    }
+    let reasons: Vec<String> = [
+        (c.no_room, "no room"),
+        (c.outside_window, "outside its window"),
+        (c.non_finite_position, "non-finite position"),
+        (c.non_finite_feature, "non-finite feature"),
+        (c.key_out_of_range, "beyond the key range"),
+        (c.unpaired, "unpaired"),
+        (c.code_out_of_range, "int8 code −128"),
+        (c.feature_scale, "no int8 scale"),
+    ]
+    .iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, why)| format!("{why} {n}"))
+    .collect();
+    let advice = if c.no_room > 0 {
+        format!(
+            " No room: its map ({} voxels) was full and a frame's evictions overflowed its link queue \
+             ({} KiB between ticks) — back-pressure, nothing dropped silently; fewer --points per frame or \
+             a coarser --voxel-size lower the load.",
+            super::methods::DEVICE_CAPACITY,
+            super::methods::DEVICE_QUEUE / 1024
+        )
+    } else {
+        String::new()
+    };
+    Some(format!(
+        "\n{label}: the robot's map refused {} of the {handed} points handed to it ({}), each counted; its \
+         row covers only the points it took.{advice}\n",
+        c.total(),
+        reasons.join(", ")
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::refusal_note;
+    use latentbki::RejectionCounts;
+
+    #[test]
+    fn a_map_that_took_every_point_gets_no_note() {
+        assert_eq!(refusal_note("m", &RejectionCounts::default(), 10), None);
+    }
+
+    #[test]
+    fn refusals_are_counted_by_reason_and_no_room_says_what_lowers_the_load() {
+        let c = RejectionCounts {
+            no_room: 5,
+            outside_window: 2,
+            ..RejectionCounts::default()
+        };
+        let note = refusal_note("robot", &c, 100).unwrap();
+        assert!(note.contains("refused 7 of the 100 points"), "{note}");
+        assert!(note.contains("no room 5, outside its window 2"), "{note}");
+        assert!(note.contains("--points"), "{note}");
+        let c = RejectionCounts {
+            outside_window: 3,
+            ..RejectionCounts::default()
+        };
+        let note = refusal_note("robot", &c, 100).unwrap();
+        assert!(!note.contains("No room"), "{note}");
+    }
 }

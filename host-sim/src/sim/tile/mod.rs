@@ -16,7 +16,8 @@
 //! - **Large files**: at most `max_points` points are kept — every k-th point in file order, which is scan
 //!   order, so the subsample covers the tile evenly — and the summary says so.
 //! - **Classes**: the ASPRS names ([`super::asprs`]); 0 and 1 are both "unclassified"; reserved and user
-//!   codes (LAS 1.4 allows up to 255) become "class N". Tiles with one class or without ground are kept:
+//!   codes (LAS 1.4 allows up to 255) become "class N". Tiles with one class (the summary says the
+//!   accuracy columns then mean nothing) or without ground are kept:
 //!   the flight then follows every non-noise point.
 //!
 //! The committed tile is compiled into the binary, so `demo` works from any directory on a fresh clone.
@@ -279,6 +280,15 @@ impl Tile {
             };
             codes[i].push(code);
             index_of[usize::from(code)] = i as u16;
+        }
+        if let [only] = names.as_slice() {
+            // Raw surveys often come unclassified (0/1): the map and its queries still work, but every
+            // method labels every voxel with the one class, so the tables' accuracy says nothing.
+            notes.push(format!(
+                "one class only ({only}): every method scores 100 % by construction, so the accuracy \
+                 columns say nothing; classify the file first (e.g. PDAL's filters.smrf or LAStools' \
+                 lasground) for a meaningful table"
+            ));
         }
         let mut points = Vec::with_capacity(raw.xyz.len());
         let mut classes = Vec::with_capacity(raw.xyz.len());
