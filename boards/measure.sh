@@ -19,6 +19,11 @@
 #                                     the rows of a build with `--features forgetting` against this one's,
 #                                     its flash and stack high-water mark; fails when either is over its
 #                                     limit (64 KiB, 8 KiB; STACK_LIMIT=bytes overrides the stack's)
+#        boards/measure.sh --explorer-view   what scoring one candidate view the size of `host-sim explore`'s
+#                                     costs (issue 21): a measurement build (not shipped, flash not
+#                                     limited) with the explorer's 24 × 18 rays cast from each frame's pose;
+#                                     the view's instructions and the per-point cost of the int8 and f32
+#                                     rows with one such view per frame; fails over 8 KiB of stack
 #        PROFILE=1 boards/measure.sh  also the per-function profile of the marked regions (hot spots; with
 #                                     --forgetting, the forgetting build's: frames and views together)
 set -euo pipefail
@@ -77,11 +82,12 @@ fi
 # ---- forgetting (issue 21): the same scenarios on a mapper that forgets (half-life 4 frames, one tick per
 # frame), plus one candidate view scored after each frame, built apart (`--features forgetting`, its own
 # target dir: never the golden firmware), against this build's rows. Prints its rows of the table.
-if [ "${1:-}" = --forgetting ]; then
-  FG_ELF=$(build_forgetting)
+# Runs this build ("off") and the build $1 ("on") under the instruction counter: $OUT/stdout-{off,on}.txt and
+# $OUT/insn-{off,on}.log.
+run_off_on() {
   OUT="$OUT/insncount.so" plugin/build.sh
   for run in off on; do
-    elf=$ELF; [ $run = on ] && elf=$FG_ELF
+    elf=$ELF; [ $run = on ] && elf=$1
     # PROFILE=1: the forgetting build's run also logs per-PC counts (its hot spots, printed after the rows).
     args=""; [ $run = on ] && [ "${PROFILE:-0}" = 1 ] && args="profile=on"
     QEMU_PLUGIN="$OUT/insncount.so" QEMU_PLUGIN_ARGS="$args" QEMU_PLUGIN_LOG="$OUT/insn-$run.log" \
@@ -94,6 +100,65 @@ if [ "${1:-}" = --forgetting ]; then
       exit 1
     fi
   done
+}
+
+# ---- explorer-view (issue 21): what one candidate view the size of `host-sim explore`'s costs, counted. A
+# measurement build, not shipped (`--features explorer-view`, its own target dir): the forgetting build with
+# the 64-voxel view replaced by the explorer's 24 × 18 rays (its camera's field of view) cast from each
+# frame's pose against the self-test room (boards/selftest-firmware/src/explorer_view.rs), the hits in a
+# static. Its flash is over 64 KiB (the casting and the report's extra fields; printed, not limited) and its
+# statics leave ≈ 10 KiB of stack instead of 16: it fails when its stack high-water mark exceeds 8 KiB.
+if [ "${1:-}" = --explorer-view ]; then
+  EV_ELF=$(CARGO_TARGET_DIR="$CARGO_TARGET_DIR/explorer-view" \
+    cargo build --release --quiet --features explorer-view --message-format=json-render-diagnostics |
+    python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])')
+  run_off_on "$EV_ELF"
+  flash_bytes "$EV_ELF" > "$OUT/flash-explorer-view.txt"
+  python3 - "$OUT" "$STACK_LIMIT" <<'PY'
+import re, sys
+out, limit = sys.argv[1], int(sys.argv[2])
+kv = lambda line: dict(re.findall(r'(\w+)=(\d+)', line))
+def runs(which):
+    text = open(f"{out}/stdout-{which}.txt").read().splitlines()
+    lines = [l for l in text if l.startswith(("frame ", "view "))]
+    marks = [int(l.split()[2]) for l in open(f"{out}/insn-{which}.log") if l.startswith("mark ")]
+    assert len(lines) == len(marks), (which, len(lines), len(marks))
+    names = {int(kv(l)["s"]): re.search(r'name=(\w+)', l).group(1) for l in text if l.startswith("scenario ")}
+    frames, views = {}, {}
+    for l, m in zip(lines, marks):
+        d = kv(l)
+        if l.startswith("frame "):
+            frames.setdefault(names[int(d["s"])], []).append((int(d["points"]), m))
+        else:
+            views.setdefault(names[int(d["s"])], []).append((int(d["voxels"]), int(d["reached"]), m))
+    return frames, views, text
+off, _, _ = runs("off")
+on, views, text = runs("on")
+med = lambda xs: sorted(xs)[len(xs) // 2]
+v = views["depth_f3"]
+assert all(int(kv(l)["score_bits"]) != 0 for l in text if l.startswith("view ")), "a view was refused"
+print(f"view score, 24 × 18 rays (432 rays; median {med([h for h, _, _ in v])} hits, {med([r for _, r, _ in v])} "
+      f"reached, 0.1 m voxels): median {med([i for _, _, i in v])} instructions, "
+      f"{min(i for _, _, i in v)}–{max(i for _, _, i in v)} ({len(v)} views, depth_f3)")
+for name, label in [("depth_f3_i8", "int8"), ("depth_f3", "f32")]:
+    p = sum(n for n, _ in on[name])
+    a = sum(i for _, i in off[name]) / sum(n for n, _ in off[name])
+    c = (sum(i for _, i in on[name]) + sum(i for _, _, i in views[name])) / p
+    print(f"per point, f = 3, {label}, forgetting on and one 24 × 18-ray view scored per frame: {c:.0f} mean, "
+          f"{100 * (c / a - 1):+.1f} % vs {a:.0f} without ({len(on[name])} depth frames, {p:,} points)")
+stack = [kv(l) for l in text if l.startswith("stack ")]
+tail = int(kv(next(l for l in text if l.startswith("memory ")))["tail_stack_high_water"])
+whole = max([int(s["setup_high_water"]) for s in stack] + [int(s["loop_high_water"]) for s in stack] + [tail])
+flash = int(open(f"{out}/flash-explorer-view.txt").read())
+print(f"explorer-view build (measurement only): stack, whole run {whole} B (≤ {limit}); flash {flash} B (not limited)")
+sys.exit(1 if whole > limit else 0)
+PY
+  exit $?
+fi
+
+if [ "${1:-}" = --forgetting ]; then
+  FG_ELF=$(build_forgetting)
+  run_off_on "$FG_ELF"
   flash_bytes "$FG_ELF" > "$OUT/flash-forgetting.txt"
   python3 - "$OUT" <<'PY'
 import re, sys

@@ -43,6 +43,9 @@ macro_rules! report {
     }};
 }
 
+#[cfg(feature = "explorer-view")]
+mod explorer_view;
+
 /// Exit codes reported through semihosting (QEMU's process exit code).
 pub mod exit_code {
     /// Success.
@@ -101,7 +104,7 @@ type Clock = latentbki::forget::Fading;
 #[cfg(feature = "forgetting")]
 const HALF_LIFE_FRAMES: f32 = 4.0;
 /// Voxels in the candidate view the forgetting build scores after each frame.
-#[cfg(feature = "forgetting")]
+#[cfg(all(feature = "forgetting", not(feature = "explorer-view")))]
 const VIEW_VOXELS: usize = 64;
 
 /// Voxels the map holds: the self-test's RAM budget at this build's bytes per voxel (the forgetting build's
@@ -118,6 +121,10 @@ type Robot =
 /// scenario; never on the stack.
 static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
 static CHUNK: ConstStaticCell<Chunk<D, K>> = ConstStaticCell::new(Chunk::ZERO);
+/// The measurement build's view: 432 hits (6,912 B), in a static, as the stack has no room for them.
+#[cfg(feature = "explorer-view")]
+static VIEW_HITS: ConstStaticCell<explorer_view::Hits> =
+    ConstStaticCell::new([(latentbki::key::VoxelKey::new(0, 0, 0), 0.0); explorer_view::HITS]);
 
 /// Run every scenario of the self-test, streaming frames on `uart`, and report. Returns the exit code
 /// ([`exit_code`]). Call once: the second call finds the statics taken and fails.
@@ -131,8 +138,22 @@ where
     let (Some(mapper), Some(chunk)) = (MAPPER.try_take(), CHUNK.try_take()) else {
         return exit_code::FAILED;
     };
+    #[cfg(feature = "explorer-view")]
+    let Some(hits) = VIEW_HITS.try_take() else {
+        return exit_code::FAILED;
+    };
     for (s, scenario) in SELF_TEST.iter().enumerate() {
-        if let Err(code) = run_scenario(s, scenario, mapper, chunk, uart, markers, stack) {
+        if let Err(code) = run_scenario(
+            s,
+            scenario,
+            mapper,
+            chunk,
+            uart,
+            markers,
+            stack,
+            #[cfg(feature = "explorer-view")]
+            hits,
+        ) {
             return code;
         }
     }
@@ -152,6 +173,7 @@ where
 
 /// One scenario of the self-test: the map and the encoder configured in place, the run, a report.
 #[inline(never)]
+#[cfg_attr(feature = "explorer-view", allow(clippy::too_many_arguments))]
 fn run_scenario<U, M, S>(
     s: usize,
     scenario: &Scenario,
@@ -160,6 +182,7 @@ fn run_scenario<U, M, S>(
     uart: &mut U,
     markers: &mut M,
     stack: &mut S,
+    #[cfg(feature = "explorer-view")] hits: &mut explorer_view::Hits,
 ) -> Result<(), i32>
 where
     U: embedded_io::Write<Error = Infallible>,
@@ -183,8 +206,10 @@ where
             m.len()
         );
         // After the frame's line: its `view` line pairs with the next report marker.
-        #[cfg(feature = "forgetting")]
+        #[cfg(all(feature = "forgetting", not(feature = "explorer-view")))]
         score_view::<M>(s, m);
+        #[cfg(feature = "explorer-view")]
+        explorer_view::score::<M>(s, scenario, i, m, hits);
         if i + 1 == scenario.frames {
             // Outside the counted regions: how many voxels the full map answers (stored voxels and every
             // voxel within the kernel's reach of one).
@@ -257,7 +282,7 @@ fn configure(scenario: &Scenario, mapper: &mut Robot) -> Result<(), i32> {
 /// ahead of the window's centre, one expected point each — against the map as it is after the frame
 /// (`info_gain::view_score`, which `Mapper::view_score` runs), bracketed by the markers and reported as a
 /// `view` line. Integers only on stdout (f32 formatting would cost ~10 KB of flash).
-#[cfg(feature = "forgetting")]
+#[cfg(all(feature = "forgetting", not(feature = "explorer-view")))]
 #[inline(never)]
 fn score_view<M: Markers + Default>(s: usize, m: &Map) {
     use latentbki::key::VoxelKey;
