@@ -52,7 +52,8 @@ pub struct ExploreArgs {
     #[arg(long, default_value_t = 1)]
     pub horizon: usize,
     /// Reuse the random and nearest-frontier runs kept in this directory by an earlier call with the same
-    /// house, seed and budget (and the same build): they do not depend on information gain's settings, so
+    /// house, seed and budget by the same build (files are named with a hash of the executable, so another
+    /// build's runs are never read back): they do not depend on information gain's settings, so
     /// comparing its designs costs a third of the time. Runs not found there are made and kept.
     #[arg(long)]
     pub baselines: Option<PathBuf>,
@@ -144,9 +145,10 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
                             .flatten()
                             .map(|dir| {
                                 dir.join(format!(
-                                    "{}-house{layout}-seed{seed}-budget{}.txt",
+                                    "{}-house{layout}-seed{seed}-budget{}-build{}.txt",
                                     p.name().replace(' ', "-"),
-                                    args.budget
+                                    args.budget,
+                                    build_id()
                                 ))
                             });
                         if let Some(samples) = kept.as_deref().and_then(read_samples) {
@@ -354,6 +356,23 @@ fn summary(outcomes: &[Outcome]) -> String {
 }
 
 /// Samples kept by [`write_samples`], if the file is there and whole.
+/// A fingerprint of this executable (a hash of its bytes, computed once): baseline runs kept by
+/// `--baselines` are named with it, so a run made by another build (other predictions, other planners) is
+/// never read back as if it were this one's.
+fn build_id() -> &'static str {
+    static ID: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    ID.get_or_init(|| {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        match std::env::current_exe().and_then(std::fs::read) {
+            Ok(bytes) => bytes.hash(&mut h),
+            // Unreadable: a fresh id per process, so nothing is reused rather than something stale.
+            Err(_) => std::process::id().hash(&mut h),
+        }
+        format!("{:012x}", h.finish() & 0xffff_ffff_ffff)
+    })
+}
+
 fn read_samples(path: &Path) -> Option<Vec<Sample>> {
     let text = std::fs::read_to_string(path).ok()?;
     let samples: Option<Vec<Sample>> = text
@@ -378,4 +397,15 @@ fn write_samples(path: &Path, samples: &[Sample]) -> Result<()> {
         .map(|s| format!("{} {} {} {}\n", s.distance, s.accuracy, s.miou, s.frames))
         .collect();
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_build_id_names_this_executable_the_same_way_each_time() {
+        let id = super::build_id();
+        assert_eq!(id.len(), 12, "{id}");
+        assert!(id.chars().all(|c| c.is_ascii_hexdigit()), "{id}");
+        assert_eq!(id, super::build_id());
+    }
 }
