@@ -114,28 +114,14 @@ if [ "${1:-}" = --explorer-view ]; then
     python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])')
   run_off_on "$EV_ELF"
   flash_bytes "$EV_ELF" > "$OUT/flash-explorer-view.txt"
-  python3 - "$OUT" "$STACK_LIMIT" <<'PY'
-import re, sys
+  PYTHONPATH=.. python3 - "$OUT" "$STACK_LIMIT" <<'PY'
+import sys
+from marked_runs import kv, runs, whole_stack
 out, limit = sys.argv[1], int(sys.argv[2])
-kv = lambda line: dict(re.findall(r'(\w+)=(\d+)', line))
-def runs(which):
-    text = open(f"{out}/stdout-{which}.txt").read().splitlines()
-    lines = [l for l in text if l.startswith(("frame ", "view "))]
-    marks = [int(l.split()[2]) for l in open(f"{out}/insn-{which}.log") if l.startswith("mark ")]
-    assert len(lines) == len(marks), (which, len(lines), len(marks))
-    names = {int(kv(l)["s"]): re.search(r'name=(\w+)', l).group(1) for l in text if l.startswith("scenario ")}
-    frames, views = {}, {}
-    for l, m in zip(lines, marks):
-        d = kv(l)
-        if l.startswith("frame "):
-            frames.setdefault(names[int(d["s"])], []).append((int(d["points"]), m))
-        else:
-            views.setdefault(names[int(d["s"])], []).append((int(d["voxels"]), int(d["reached"]), m))
-    return frames, views, text
-off, _, _ = runs("off")
-on, views, text = runs("on")
+off, _, _ = runs(out, "off")
+on, views, text = runs(out, "on")
 med = lambda xs: sorted(xs)[len(xs) // 2]
-v = views["depth_f3"]
+v = [(int(d["voxels"]), int(d["reached"]), m) for d, m in views["depth_f3"]]
 assert all(int(kv(l)["score_bits"]) != 0 for l in text if l.startswith("view ")), "a view was refused"
 print(f"view score, 24 × 18 rays (432 rays; median {med([h for h, _, _ in v])} hits, {med([r for _, r, _ in v])} "
       f"reached, 0.1 m voxels): median {med([i for _, _, i in v])} instructions, "
@@ -143,12 +129,10 @@ print(f"view score, 24 × 18 rays (432 rays; median {med([h for h, _, _ in v])} 
 for name, label in [("depth_f3_i8", "int8"), ("depth_f3", "f32")]:
     p = sum(n for n, _ in on[name])
     a = sum(i for _, i in off[name]) / sum(n for n, _ in off[name])
-    c = (sum(i for _, i in on[name]) + sum(i for _, _, i in views[name])) / p
+    c = (sum(i for _, i in on[name]) + sum(i for _, i in views[name])) / p
     print(f"per point, f = 3, {label}, forgetting on and one 24 × 18-ray view scored per frame: {c:.0f} mean, "
           f"{100 * (c / a - 1):+.1f} % vs {a:.0f} without ({len(on[name])} depth frames, {p:,} points)")
-stack = [kv(l) for l in text if l.startswith("stack ")]
-tail = int(kv(next(l for l in text if l.startswith("memory ")))["tail_stack_high_water"])
-whole = max([int(s["setup_high_water"]) for s in stack] + [int(s["loop_high_water"]) for s in stack] + [tail])
+whole = whole_stack(text)
 flash = int(open(f"{out}/flash-explorer-view.txt").read())
 print(f"explorer-view build (measurement only): stack, whole run {whole} B (≤ {limit}); flash {flash} B (not limited)")
 sys.exit(1 if whole > limit else 0)
@@ -160,26 +144,12 @@ if [ "${1:-}" = --forgetting ]; then
   FG_ELF=$(build_forgetting)
   run_off_on "$FG_ELF"
   flash_bytes "$FG_ELF" > "$OUT/flash-forgetting.txt"
-  python3 - "$OUT" <<'PY'
-import re, sys
+  PYTHONPATH=.. python3 - "$OUT" <<'PY'
+import sys
+from marked_runs import runs, whole_stack
 out = sys.argv[1]
-kv = lambda line: dict(re.findall(r'(\w+)=(\d+)', line))
-def runs(which):
-    lines = [l for l in open(f"{out}/stdout-{which}.txt") if l.startswith(("frame ", "view "))]
-    marks = [int(l.split()[2]) for l in open(f"{out}/insn-{which}.log") if l.startswith("mark ")]
-    assert len(lines) == len(marks), (which, len(lines), len(marks))
-    names = {int(kv(l)["s"]): re.search(r'name=(\w+)', l).group(1)
-             for l in open(f"{out}/stdout-{which}.txt") if l.startswith("scenario ")}
-    frames, views = {}, {}
-    for l, m in zip(lines, marks):
-        d = kv(l)
-        if l.startswith("frame "):
-            frames.setdefault(names[int(d["s"])], []).append((int(d["points"]), m))
-        else:
-            views.setdefault(names[int(d["s"])], []).append(m)
-    return frames, views
-off, _ = runs("off")
-on, views = runs("on")
+off, _, _ = runs(out, "off")
+on, views, text = runs(out, "on")
 flash = int(open(f"{out}/flash-forgetting.txt").read())
 print("| measure | value | goal |")
 print("|---|---|---|")
@@ -187,20 +157,17 @@ for name, label in [("depth_f3", "f32 features"), ("depth_f3_i8", "i8 features")
     p = sum(n for n, _ in on[name])
     a = sum(i for _, i in off[name]) / sum(n for n, _ in off[name])
     b = sum(i for _, i in on[name]) / p
-    v = sum(views[name])
+    v = sum(m for _, m in views[name])
     c = (sum(i for _, i in on[name]) + v) / p
     print(f"| instructions/point, f = 3, thumbv7em, {label}, forgetting on (half-life 4 frames; {len(on[name])} depth "
           f"frames, {p:,} points) | {b:.0f} mean, {100 * (b / a - 1):+.1f} % vs {a:.0f} without; with one candidate view "
           f"scored per frame {c:.0f}, {100 * (c / a - 1):+.1f} % | ≤ +15 % |")
-v = sorted(views["depth_f3"])
+v = sorted(m for _, m in views["depth_f3"])
 print(f"| instructions to score one candidate view of 64 voxels (`Mapper::view_score`), f = 3, after each depth frame "
       f"| median {v[len(v) // 2]}, {v[0]}–{v[-1]} ({len(v)} views) | |")
 print(f"| flash, the forgetting build (forgetting and view scoring linked) | {flash / 1024:.1f} KiB ({flash} B) | ≤ 64 KB |")
 # The deepest of all the run's windows, as in the reporting build's table (view scoring included).
-text = open(f"{out}/stdout-on.txt").read().splitlines()
-stack = [kv(l) for l in text if l.startswith("stack ")]
-tail = int(kv(next(l for l in text if l.startswith("memory ")))["tail_stack_high_water"])
-whole = max([int(s["setup_high_water"]) for s in stack] + [int(s["loop_high_water"]) for s in stack] + [tail])
+whole = whole_stack(text)
 print(f"| stack, whole run (set-up and view scoring included), the forgetting build | {whole} B | ≤ 8 KB |")
 open(f"{out}/stack-forgetting.txt", "w").write(f"{whole}\n")
 PY
@@ -267,10 +234,10 @@ grep -q '^done$' "$OUT/stdout.txt" || { echo "firmware did not finish" >&2; cat 
 
 # Pair each frame line with its plugin mark (one per frame, in order).
 paste -d' ' <(grep '^frame ' "$OUT/stdout.txt") <(grep '^mark ' "$OUT/insn.log") > "$OUT/frames.txt"
-python3 - "$OUT" <<'PY'
+PYTHONPATH=.. python3 - "$OUT" <<'PY'
 import re, sys
+from marked_runs import kv, whole_stack
 out = sys.argv[1]
-kv = lambda line: dict(re.findall(r'(\w+)=(\d+)', line))
 size = kv(open(f"{out}/firmware.size").read())
 runs = {}
 for line in open(f"{out}/frames.txt"):
@@ -290,8 +257,7 @@ print(f"| map | {KB(mem['map_bytes'])}, {scen[0]['capacity']} voxels, {mem['byte
 print(f"| stack, integrate-and-stream loop | {max(int(s['loop_high_water']) for s in stack)} B | ≤ 8 KB |")
 # Whole run: the deepest of all windows (each set-up mark covers the previous loop's reports and this set-up,
 # each loop mark its loop, the tail mark the last loop and the final reports).
-whole = max([int(s['setup_high_water']) for s in stack] + [int(s['loop_high_water']) for s in stack]
-            + [int(mem['tail_stack_high_water'])])
+whole = whole_stack(stdout.splitlines())
 print(f"| stack, whole run (set-up included) | {whole} B | ≤ 8 KB |")
 # One row per sensor pattern and feature type (the scenarios' names are in latentbki-selftest's SELF_TEST).
 names = {s: re.search(r'name=(\w+)', l).group(1) for l in stdout.splitlines() if l.startswith("scenario ")
