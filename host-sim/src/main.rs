@@ -272,14 +272,8 @@ fn run() -> Result<()> {
                 latentbki::wire::NO_FEATURE_SPACE,
             );
             let radio = host_sim::demo_radio::DemoRadio::new(session, &args.link)?;
-            if args.view.wanted() {
-                args.view.check()?;
-                let v = host_sim::base_station::view::Viewer::start(
-                    host_sim::base_station::cli::view_options(&args.view, None, None),
-                )?;
-                if let (Some(a), Some(port)) = (args.view.view, v.port()) {
-                    println!("viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)", a.ip());
-                }
+            // The view decodes once the run has fitted the robot's feature space (`Radio::feature_space`).
+            if let Some(v) = host_sim::base_station::cli::start_view(&args.view, None, None)? {
                 radio
                     .lock()
                     .map_err(|_| anyhow::anyhow!("link state poisoned"))?
@@ -300,8 +294,10 @@ fn run() -> Result<()> {
                 radio.compare_reference(&r.mapper.snapshot());
             }
             println!("{}", radio.summary());
-            if let Some(s) = radio.finish_viewer() {
-                host_sim::base_station::cli::print_view_summary(&s);
+            let viewer = radio.take_viewer();
+            drop(radio);
+            if let Some(v) = viewer {
+                host_sim::base_station::cli::serve_until_interrupted(v, &args.view)?;
             }
             Ok(())
         }
