@@ -263,8 +263,14 @@ impl<
         let report = self
             .encoder
             .tick_live(w, budget, live_budget, self.map.changed_voxels(hand));
-        // The leading `live_sent` changed voxels from the hand were consumed: mark them streamed.
-        let consumed = match &report {
+        self.mark_live_sent(hand, &report);
+        report
+    }
+
+    /// After a live tick from `hand`: the leading `live_sent` changed voxels from the hand were consumed,
+    /// mark them streamed and move the hand past them.
+    fn mark_live_sent<E>(&mut self, hand: usize, report: &Result<TickReport, TickError<E>>) {
+        let consumed = match report {
             Ok(r) => r.live_sent,
             Err(TickError::Write(_, r)) => r.live_sent,
         };
@@ -277,7 +283,6 @@ impl<
             at = if s + 1 >= CAP { 0 } else { s + 1 };
         }
         self.live_hand = at;
-        report
     }
 
     /// Read the acknowledgements the back channel has ready (never blocking): acknowledged frames are
@@ -296,6 +301,21 @@ impl<
         self.encoder
             .count_bad_acks(self.acks.stats().refused().saturating_sub(before));
         Ok(n)
+    }
+
+    /// Apply the acknowledgements in bytes read from the back channel by any means (an interrupt's buffer,
+    /// an async read, a test): what [`Self::poll_acks`] does with the bytes it reads. Partial
+    /// acknowledgements wait for their rest.
+    pub fn feed_acks(&mut self, bytes: &[u8]) {
+        let settings = *self.encoder.settings();
+        let before = self.acks.stats().refused();
+        let encoder = &mut self.encoder;
+        self.acks
+            .feed(bytes, settings.robot, settings.session, |ack| {
+                encoder.acknowledge(&ack);
+            });
+        self.encoder
+            .count_bad_acks(self.acks.stats().refused().saturating_sub(before));
     }
 
     /// What the acknowledgement reader saw.
@@ -364,8 +384,8 @@ impl<
             let (Ok(n) | Err(n)) = flushed;
             report.evicted = report.evicted.saturating_add(n as u32);
             let left = budget.saturating_sub(report.bytes);
-            if flushed.is_ok() && self.encoder.queued() == 0 && !self.encoder.has_pending() {
-                if self.encoder.frames_since_stats() == 0 && self.encoder.next_seq() != 0 {
+            if flushed.is_ok() && self.drained_but_stats() {
+                if self.stats_closed() {
                     report.done = true; // the closing statistics are the last frame written
                     return Ok(report);
                 }
@@ -393,6 +413,17 @@ impl<
                 };
             }
         }
+    }
+
+    /// The map and the queue are empty and no frame waits for its write: only the closing statistics may
+    /// be left to send.
+    fn drained_but_stats(&self) -> bool {
+        self.map.is_empty() && self.encoder.queued() == 0 && !self.encoder.has_pending()
+    }
+
+    /// The last frame written is link statistics (a drain's closing frame).
+    fn stats_closed(&self) -> bool {
+        self.encoder.frames_since_stats() == 0 && self.encoder.next_seq() != 0
     }
 
     /// How many evicted voxels (summaries) the encoder's queue holds with this session's codec: `QB` / the
@@ -427,6 +458,9 @@ impl<
         crate::info_gain::view_score(lut, &self.map, prior.lambda, hits)
     }
 }
+
+#[cfg(feature = "async")]
+mod asynch;
 
 #[cfg(test)]
 mod link_tests;

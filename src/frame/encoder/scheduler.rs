@@ -25,7 +25,7 @@ use crate::wire::{DeltaBase, Message};
 /// What the pending frame (built in `scratch`, not yet written whole) is.
 pub(super) const PENDING_NONE: u8 = 0;
 const PENDING_HEADER: u8 = 1;
-const PENDING_STATS: u8 = 2;
+pub(super) const PENDING_STATS: u8 = 2;
 /// Queued (final) voxels, maybe with live ones: kept for re-sending with a back channel.
 const PENDING_KEPT_VOXELS: u8 = 3;
 /// Live voxels only: never kept.
@@ -392,57 +392,66 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.since_stats
     }
 
-    /// Write the pending frame (if any), then a control message now, outside the tick's schedule, if all
-    /// of it fits in `budget` bytes. `Ok(None)`: it did not fit, nothing was written.
+    /// The next write of a control message sent outside the tick's schedule within `budget` bytes: the
+    /// pending frame first (if any), then the message, built as the pending frame. `None` when what is
+    /// next does not fit (nothing of it is built) or the message was sent.
+    pub(super) fn plan_control(&mut self, kind: u8, budget: usize) -> Option<(Tick, Planned)> {
+        if !self.is_configured() {
+            return None;
+        }
+        let t = self.forced_tick();
+        if !self.has_pending() {
+            let message = match kind {
+                PENDING_HEADER => Message::Session(self.config),
+                _ => Message::Stats(self.stats),
+            };
+            if !self.pend_message(message, kind) {
+                return None;
+            }
+            if self.pending_len > budget {
+                self.drop_pending();
+                return None;
+            }
+            if !self.can_keep(self.pending_len) {
+                self.pending_kind |= PENDING_UNKEPT;
+            }
+        } else if self.pending_len > budget {
+            return None;
+        }
+        Some((t, Planned::Pending))
+    }
+
+    /// Whether the pending frame is a statistics frame (the last write of [`Self::plan_control`]).
+    pub(super) fn pending_is(&self, kind: u8) -> bool {
+        self.pending_kind & !PENDING_UNKEPT == kind
+    }
+
+    /// Write the pending frame (if any), then a control message now, outside the tick's schedule, if they
+    /// fit in `budget` bytes. `Ok(None)`: the message did not fit (nothing of it was written).
     fn send_control<W: embedded_io::Write>(
         &mut self,
         w: &mut W,
-        message: impl Fn(&Self) -> Message<'static>,
         kind: u8,
         budget: usize,
     ) -> Result<Option<usize>, W::Error> {
-        if !self.is_configured() {
-            return Ok(None);
-        }
-        let mut t = self.forced_tick();
-        if self.has_pending() {
-            if self.pending_len > budget {
-                return Ok(None);
-            }
-            let r = w.write_all(self.planned_bytes(Planned::Pending));
-            self.commit(&mut t, Planned::Pending, r.is_ok());
+        let mut written = 0;
+        while let Some((mut t, p)) = self.plan_control(kind, budget.saturating_sub(written)) {
+            let last = self.pending_is(kind);
+            let r = w.write_all(self.planned_bytes(p));
+            self.commit(&mut t, p, r.is_ok());
             r?;
+            written += t.report.bytes;
+            if last {
+                return Ok(Some(written));
+            }
         }
-        let m = message(self);
-        if !self.pend_message(m, kind) {
-            return Ok(None);
-        }
-        if t.report.bytes + self.pending_len > budget {
-            self.drop_pending();
-            return Ok(if t.report.bytes > 0 {
-                Some(t.report.bytes)
-            } else {
-                None
-            });
-        }
-        if !self.can_keep(self.pending_len) {
-            self.pending_kind |= PENDING_UNKEPT;
-        }
-        let r = w.write_all(self.planned_bytes(Planned::Pending));
-        self.commit(&mut t, Planned::Pending, r.is_ok());
-        r?;
-        Ok(Some(t.report.bytes))
+        Ok(None)
     }
 
     /// Force a session header now (as the first frame it is sent anyway), after a frame whose write
     /// failed. Returns bytes written (0 without a session).
     pub fn send_header<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<usize, W::Error> {
-        let sent = self.send_control(
-            w,
-            |s| Message::Session(s.config),
-            PENDING_HEADER,
-            usize::MAX,
-        );
+        let sent = self.send_control(w, PENDING_HEADER, usize::MAX);
         sent.map(|n| n.unwrap_or(0))
     }
 
@@ -459,7 +468,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         w: &mut W,
         budget: usize,
     ) -> Result<Option<usize>, W::Error> {
-        self.send_control(w, |s| Message::Stats(s.stats), PENDING_STATS, budget)
+        self.send_control(w, PENDING_STATS, budget)
     }
 
     /// Spend up to `budget` bytes: overdue re-sends (with a back channel), a frame whose write failed, the
