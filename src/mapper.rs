@@ -415,10 +415,10 @@ impl<
         }
     }
 
-    /// The map and the queue are empty and no frame waits for its write: only the closing statistics may
-    /// be left to send.
+    /// The queue is empty and no frame waits for its write (after a flush that emptied the map): only the
+    /// closing statistics may be left to send.
     fn drained_but_stats(&self) -> bool {
-        self.map.is_empty() && self.encoder.queued() == 0 && !self.encoder.has_pending()
+        self.encoder.queued() == 0 && !self.encoder.has_pending()
     }
 
     /// The last frame written is link statistics (a drain's closing frame).

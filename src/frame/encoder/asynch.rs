@@ -4,9 +4,10 @@
 //! firmware writes the bytes a blocking one writes.
 
 use super::queue::LiveItem;
-use super::scheduler::PENDING_STATS;
+use super::scheduler::{Planned, PENDING_STATS, PENDING_UNKEPT};
 use super::{FrameEncoder, TickError, TickReport};
 use crate::sink::Evicted;
+use crate::wire::Message;
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// [`Self::tick`] over an async writer.
@@ -48,25 +49,37 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         Ok(t.report)
     }
 
-    /// [`Self::send_stats_within`] over an async writer.
+    /// [`Self::send_stats_within`] over an async writer (the blocking `send_control`'s steps).
     pub async fn send_stats_within_async<W: embedded_io_async::Write>(
         &mut self,
         w: &mut W,
         budget: usize,
     ) -> Result<Option<usize>, W::Error> {
-        let mut written = 0;
-        while let Some((mut t, p)) =
-            self.plan_control(PENDING_STATS, budget.saturating_sub(written))
-        {
-            let last = self.pending_is(PENDING_STATS);
-            let r = w.write_all(self.planned_bytes(p)).await;
-            self.commit(&mut t, p, r.is_ok());
-            r?;
-            written += t.report.bytes;
-            if last {
-                return Ok(Some(written));
-            }
+        if !self.is_configured() {
+            return Ok(None);
         }
-        Ok(None)
+        let mut t = self.forced_tick();
+        if self.has_pending() {
+            if self.pending_len > budget {
+                return Ok(None);
+            }
+            let r = w.write_all(self.planned_bytes(Planned::Pending)).await;
+            self.commit(&mut t, Planned::Pending, r.is_ok());
+            r?;
+        }
+        if !self.pend_message(Message::Stats(self.stats), PENDING_STATS) {
+            return Ok(None);
+        }
+        if t.report.bytes + self.pending_len > budget {
+            self.drop_pending();
+            return Ok((t.report.bytes > 0).then_some(t.report.bytes));
+        }
+        if !self.can_keep(self.pending_len) {
+            self.pending_kind |= PENDING_UNKEPT;
+        }
+        let r = w.write_all(self.planned_bytes(Planned::Pending)).await;
+        self.commit(&mut t, Planned::Pending, r.is_ok());
+        r?;
+        Ok(Some(t.report.bytes))
     }
 }

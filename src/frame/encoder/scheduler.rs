@@ -31,7 +31,7 @@ const PENDING_KEPT_VOXELS: u8 = 3;
 /// Live voxels only: never kept.
 const PENDING_LIVE_VOXELS: u8 = 4;
 /// Flag on a control frame sent out of the schedule when the re-send buffer cannot keep it.
-const PENDING_UNKEPT: u8 = 0x80;
+pub(super) const PENDING_UNKEPT: u8 = 0x80;
 
 /// Where a tick is in its order of business.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,7 +106,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 
     /// A tick that writes only what is pending, then forced control frames ([`Self::send_header`]).
-    fn forced_tick(&self) -> Tick {
+    pub(super) fn forced_tick(&self) -> Tick {
         Tick {
             phase: Phase::Pending,
             budget: usize::MAX,
@@ -128,7 +128,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 
     /// Build the pending frame from a control message. Returns false if it cannot be built.
-    fn pend_message(&mut self, message: Message<'_>, kind: u8) -> bool {
+    pub(super) fn pend_message(&mut self, message: Message<'_>, kind: u8) -> bool {
         match self.build_message(message) {
             Ok(n) => {
                 self.pending_len = n;
@@ -392,66 +392,57 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.since_stats
     }
 
-    /// The next write of a control message sent outside the tick's schedule within `budget` bytes: the
-    /// pending frame first (if any), then the message, built as the pending frame. `None` when what is
-    /// next does not fit (nothing of it is built) or the message was sent.
-    pub(super) fn plan_control(&mut self, kind: u8, budget: usize) -> Option<(Tick, Planned)> {
-        if !self.is_configured() {
-            return None;
-        }
-        let t = self.forced_tick();
-        if !self.has_pending() {
-            let message = match kind {
-                PENDING_HEADER => Message::Session(self.config),
-                _ => Message::Stats(self.stats),
-            };
-            if !self.pend_message(message, kind) {
-                return None;
-            }
-            if self.pending_len > budget {
-                self.drop_pending();
-                return None;
-            }
-            if !self.can_keep(self.pending_len) {
-                self.pending_kind |= PENDING_UNKEPT;
-            }
-        } else if self.pending_len > budget {
-            return None;
-        }
-        Some((t, Planned::Pending))
-    }
-
-    /// Whether the pending frame is a statistics frame (the last write of [`Self::plan_control`]).
-    pub(super) fn pending_is(&self, kind: u8) -> bool {
-        self.pending_kind & !PENDING_UNKEPT == kind
-    }
-
-    /// Write the pending frame (if any), then a control message now, outside the tick's schedule, if they
-    /// fit in `budget` bytes. `Ok(None)`: the message did not fit (nothing of it was written).
+    /// Write the pending frame (if any), then a control message now, outside the tick's schedule, if all
+    /// of it fits in `budget` bytes. `Ok(None)`: it did not fit, nothing was written.
     fn send_control<W: embedded_io::Write>(
         &mut self,
         w: &mut W,
+        message: impl Fn(&Self) -> Message<'static>,
         kind: u8,
         budget: usize,
     ) -> Result<Option<usize>, W::Error> {
-        let mut written = 0;
-        while let Some((mut t, p)) = self.plan_control(kind, budget.saturating_sub(written)) {
-            let last = self.pending_is(kind);
-            let r = w.write_all(self.planned_bytes(p));
-            self.commit(&mut t, p, r.is_ok());
-            r?;
-            written += t.report.bytes;
-            if last {
-                return Ok(Some(written));
-            }
+        if !self.is_configured() {
+            return Ok(None);
         }
-        Ok(None)
+        let mut t = self.forced_tick();
+        if self.has_pending() {
+            if self.pending_len > budget {
+                return Ok(None);
+            }
+            let r = w.write_all(self.planned_bytes(Planned::Pending));
+            self.commit(&mut t, Planned::Pending, r.is_ok());
+            r?;
+        }
+        let m = message(self);
+        if !self.pend_message(m, kind) {
+            return Ok(None);
+        }
+        if t.report.bytes + self.pending_len > budget {
+            self.drop_pending();
+            return Ok(if t.report.bytes > 0 {
+                Some(t.report.bytes)
+            } else {
+                None
+            });
+        }
+        if !self.can_keep(self.pending_len) {
+            self.pending_kind |= PENDING_UNKEPT;
+        }
+        let r = w.write_all(self.planned_bytes(Planned::Pending));
+        self.commit(&mut t, Planned::Pending, r.is_ok());
+        r?;
+        Ok(Some(t.report.bytes))
     }
 
     /// Force a session header now (as the first frame it is sent anyway), after a frame whose write
     /// failed. Returns bytes written (0 without a session).
     pub fn send_header<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<usize, W::Error> {
-        let sent = self.send_control(w, PENDING_HEADER, usize::MAX);
+        let sent = self.send_control(
+            w,
+            |s| Message::Session(s.config),
+            PENDING_HEADER,
+            usize::MAX,
+        );
         sent.map(|n| n.unwrap_or(0))
     }
 
@@ -468,7 +459,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         w: &mut W,
         budget: usize,
     ) -> Result<Option<usize>, W::Error> {
-        self.send_control(w, PENDING_STATS, budget)
+        self.send_control(w, |s| Message::Stats(s.stats), PENDING_STATS, budget)
     }
 
     /// Spend up to `budget` bytes: overdue re-sends (with a back channel), a frame whose write failed, the
