@@ -234,6 +234,32 @@ pub fn choose(
     {
         return Ok(c);
     }
+    let choice = choose_uncached(
+        frames,
+        candidates,
+        base,
+        decoder,
+        classes,
+        setup,
+        fits_device,
+    )?;
+    if let Ok(mut m) = MEMO.lock() {
+        m.push((key, choice.clone()));
+    }
+    Ok(choice)
+}
+
+/// [`choose`] without its memo: every candidate scored anew.
+pub fn choose_uncached(
+    frames: &[EncodedFrame],
+    candidates: &[Candidate],
+    base: &MapConfig,
+    decoder: &Decoder,
+    classes: usize,
+    setup: &Setup,
+    fits_device: &(dyn Fn(&MapConfig) -> bool + Sync),
+) -> anyhow::Result<Choice> {
+    anyhow::ensure!(!candidates.is_empty(), "no candidate scale to score");
     let split = split(frames, setup.seed);
     let bar = super::runner::progress(candidates.len() as u64, "choosing the scale");
     let results = super::runner::parallel(
@@ -271,9 +297,6 @@ pub fn choose(
         validation_points: split.iter().map(|f| f.points.len()).sum(),
         scored,
     };
-    if let Ok(mut m) = MEMO.lock() {
-        m.push((key, choice.clone()));
-    }
     Ok(choice)
 }
 

@@ -224,7 +224,16 @@ impl SceneSource {
                     p.laps,
                     p.lap_len,
                     significant(scale.flight.0)
-                ),
+                ) + &if p.budget < options.tile_points {
+                    format!(
+                        ", {} points per frame (a quarter of the {} in range: the tile holds fewer than four frames' budget of {} there)",
+                        p.budget,
+                        4 * p.budget,
+                        options.tile_points
+                    )
+                } else {
+                    String::new()
+                },
                 (None, true) => format!("; {tile_frames} frames (given) of a survey over the cells that hold points"),
                 (None, false) => format!("; {tile_frames} frames on a loop over the middle"),
             }
@@ -363,6 +372,16 @@ impl SceneSource {
         })
     }
 
+    /// The LiDAR's range over the tile, metres.
+    pub fn range(&self) -> f32 {
+        self.tile_flight.0
+    }
+
+    /// The revisiting survey's plan, when its frames were planned from the tile.
+    pub fn plan(&self) -> Option<&survey::Plan> {
+        self.plan.as_ref()
+    }
+
     /// The largest filter size the scale search may choose, when the tile's scale is chosen by validation
     /// (`None`: the scale is given or follows the spacing rule).
     pub fn validates_scale(&self) -> Option<u8> {
@@ -416,7 +435,7 @@ impl SceneSource {
         let t = self.tile.as_ref()?;
         let poses: Vec<_> = seq.frames.iter().map(|f| f.pose).collect();
         let lidar = RangeLidar {
-            points_per_frame: self.options.tile_points,
+            points_per_frame: self.budget(),
             range_m: self.tile_flight.0,
             ..RangeLidar::default()
         };
@@ -639,10 +658,14 @@ impl SceneSource {
         ))
     }
 
-    /// The default budget of the main run.
+    /// The default budget of the main run (on a planned survey, the plan's: at most a quarter of the points
+    /// in range).
     pub fn budget(&self) -> usize {
         match self.scene {
-            Scene::Tile => self.options.tile_points,
+            Scene::Tile => self
+                .plan
+                .as_ref()
+                .map_or(self.options.tile_points, |p| p.budget),
             Scene::Indoor => self.options.indoor_pixels,
         }
     }

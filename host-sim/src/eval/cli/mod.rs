@@ -11,7 +11,9 @@ use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+mod calibrate;
 mod query;
+pub use calibrate::{calibrate, config_const, device_needs, CalibrateArgs, DeviceNeeds};
 pub use query::query;
 
 /// Which scenes `eval` runs.

@@ -21,7 +21,7 @@
 //! repeated views.
 
 use super::Tile;
-use crate::sim::flight::TileRun;
+use crate::sim::flight::{sequence_poses, TileRun};
 use crate::sim::sensor::RangeLidar;
 use crate::sim::{mix_all, unit};
 use latentbki::nalgebra::Isometry3;
@@ -106,10 +106,15 @@ impl Survey {
     }
 }
 
-/// Expected number of frames that return each tile point: per frame, every point within the sensor's
-/// range counts `min(1, budget / points in range)` (the sensor keeps a uniform subset of its budget).
-pub fn frames_per_surface(tile: &Tile, poses: &[Isometry3<f32>], lidar: &RangeLidar) -> Vec<f32> {
-    let r = lidar.range_m.max(1e-3);
+/// Calls `each` with the indices of the tile's points within `range` of each pose (3D distance), pose by
+/// pose.
+fn for_points_in_range(
+    tile: &Tile,
+    poses: &[Isometry3<f32>],
+    range: f32,
+    mut each: impl FnMut(&[u32]),
+) {
+    let r = range.max(1e-3);
     let lo = tile.bounds.0;
     let key = |x: f32, y: f32| {
         (
@@ -121,7 +126,6 @@ pub fn frames_per_surface(tile: &Tile, poses: &[Isometry3<f32>], lidar: &RangeLi
     for (i, p) in tile.points.iter().enumerate() {
         grid.entry(key(p[0], p[1])).or_default().push(i as u32);
     }
-    let mut counts = vec![0.0f32; tile.points.len()];
     let mut seen: Vec<u32> = Vec::new();
     for pose in poses {
         let s = pose.translation.vector;
@@ -138,14 +142,23 @@ pub fn frames_per_surface(tile: &Tile, poses: &[Isometry3<f32>], lidar: &RangeLi
                 }
             }
         }
+        each(&seen);
+    }
+}
+
+/// Expected number of frames that return each tile point: per frame, every point within the sensor's
+/// range counts `min(1, budget / points in range)` (the sensor keeps a uniform subset of its budget).
+pub fn frames_per_surface(tile: &Tile, poses: &[Isometry3<f32>], lidar: &RangeLidar) -> Vec<f32> {
+    let mut counts = vec![0.0f32; tile.points.len()];
+    for_points_in_range(tile, poses, lidar.range_m, |seen| {
         if seen.is_empty() {
-            continue;
+            return;
         }
         let p = (lidar.points_per_frame as f32 / seen.len() as f32).min(1.0);
-        for &i in &seen {
+        for &i in seen {
             counts[i as usize] += p;
         }
-    }
+    });
     counts
 }
 
@@ -178,7 +191,7 @@ pub fn builtin_frames_per_surface() -> f32 {
     *ONCE.get_or_init(|| {
         let t = Tile::builtin().expect("the built-in tile loads");
         let run = TileRun::default();
-        let poses: Vec<Isometry3<f32>> = crate::sim::flight::sequence_poses(&t, &run);
+        let poses: Vec<Isometry3<f32>> = sequence_poses(&t, &run);
         median(&frames_per_surface(&t, &poses, &run.lidar))
     })
 }
@@ -200,28 +213,59 @@ pub struct Plan {
     pub unobserved: f32,
     /// The built-in tile's median, the target.
     pub target: f32,
+    /// Points per frame the sensor keeps: the run's budget, or a quarter of the points in its range where
+    /// the tile holds fewer than four budgets within it.
+    pub budget: usize,
 }
 
 impl Plan {
     /// One phrase for the summary line.
     pub fn describe(&self) -> String {
         format!(
-            "each surface point returned by {:.1} frames (median; 5th percentile {:.1}, {:.1} % never) against the built-in tile's {:.1}: {} laps of {} frames",
+            "each surface point returned by {:.1} frames (median; 5th percentile {:.1}, {:.1} % never) against the built-in tile's {:.1}: {} laps of {} frames, {} points per frame",
             self.median,
             self.p5,
             100.0 * self.unobserved,
             self.target,
             self.laps,
-            self.lap_len
+            self.lap_len,
+            self.budget
         )
     }
 }
 
 /// The revisiting flight over `tile` for a run like `run` (its sensor and altitude): laps are added until
 /// the median frames per surface point reaches `target` (or [`MAX_LAPS`]).
+///
+/// A frame keeps at most a quarter of the points within its range (the median over a lap's poses): the
+/// range rule ([`crate::sim::scale::scaled_sensor`]) sizes the sensor so that its sphere holds four frames'
+/// budget, and a tile smaller than that sphere (a few hundred points, or a small site under the 10 m
+/// floor) would otherwise be returned whole by every frame, its frames per surface reached in a handful of
+/// consecutive frames: one view, not revisits.
 pub fn plan(tile: &Tile, run: &TileRun, target: f32) -> Plan {
     let survey = Survey::new(tile, run.lidar.range_m);
     let m = survey.lap_len();
+    let lap = sequence_poses(
+        tile,
+        &TileRun {
+            frames: m,
+            survey: true,
+            ..*run
+        },
+    );
+    let mut visible = Vec::with_capacity(m);
+    for_points_in_range(tile, &lap, run.lidar.range_m, |seen| {
+        visible.push(seen.len() as f32)
+    });
+    let quarter = (median(&visible) / 4.0).ceil().max(1.0) as usize;
+    let budget = run.lidar.points_per_frame.min(quarter);
+    let run = &TileRun {
+        lidar: RangeLidar {
+            points_per_frame: budget,
+            ..run.lidar
+        },
+        ..*run
+    };
     let mut laps = 1;
     loop {
         let probe = TileRun {
@@ -229,7 +273,7 @@ pub fn plan(tile: &Tile, run: &TileRun, target: f32) -> Plan {
             survey: true,
             ..*run
         };
-        let poses = crate::sim::flight::sequence_poses(tile, &probe);
+        let poses = sequence_poses(tile, &probe);
         let counts = frames_per_surface(tile, &poses, &run.lidar);
         let med = median(&counts);
         if med >= target || laps >= MAX_LAPS {
@@ -248,7 +292,7 @@ pub fn plan(tile: &Tile, run: &TileRun, target: f32) -> Plan {
                 survey: true,
                 ..*run
             };
-            let poses = crate::sim::flight::sequence_poses(tile, &probe);
+            let poses = sequence_poses(tile, &probe);
             let counts = frames_per_surface(tile, &poses, &run.lidar);
             let never = counts.iter().filter(|&&c| c <= 0.0).count();
             return Plan {
@@ -259,6 +303,7 @@ pub fn plan(tile: &Tile, run: &TileRun, target: f32) -> Plan {
                 p5: quantile(&counts, 0.05),
                 unobserved: never as f32 / counts.len().max(1) as f32,
                 target,
+                budget,
             };
         }
         // Jump close to the target: laps add about the same each.
