@@ -47,7 +47,13 @@ pub fn run(
     let dec = experiment::decoding(&vocab, &train, setup)?;
     let frames = experiment::encode(&test, &dec, setup);
     // The scale: given, or chosen now by validation on the integrated points (never the held-out ones).
-    let (config, choice) = source.resolve_config(&frames, &dec, setup)?;
+    let (chosen, choice) = source.resolve_config(&frames, &dec, setup)?;
+    // Without a choice, the sequence's own configuration (indoors the paper's 0.05 m).
+    let config = if choice.is_some() {
+        chosen
+    } else {
+        test.config
+    };
     if choice.is_some() {
         println!(
             "map scale: {} (candidates in the table below)",

@@ -148,7 +148,12 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
     let (train, test) = source.train_and_test()?;
     let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup)?;
     let frames = experiment::encode(&test, &dec, &setup);
-    let (config, choice) = source.resolve_config(&frames, &dec, &setup)?;
+    let (chosen, choice) = source.resolve_config(&frames, &dec, &setup)?;
+    let config = if choice.is_some() {
+        chosen
+    } else {
+        test.config
+    };
     if let Some(c) = &choice {
         println!("\n{}", c.table());
     }
