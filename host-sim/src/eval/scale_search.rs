@@ -398,6 +398,6 @@ mod tests {
         // The built-in tile's spacing (0.094 m) has the paper's 0.1 m / 0.5 m among its candidates.
         assert!(candidates(0.094, 3)
             .iter()
-            .any(|c| c.voxel == 0.1 && (c.kernel - 0.5).abs() < 1e-6));
+            .any(|c| (c.voxel - 0.1).abs() < 1e-6 && (c.kernel - 0.5).abs() < 1e-6));
     }
 }

@@ -68,7 +68,7 @@ impl Survey {
     /// The cells of lap `lap` in flying order: serpentine rows on even laps, columns on odd ones.
     fn lap_order(&self, lap: usize) -> Vec<(i32, i32)> {
         let mut c = self.cells.clone();
-        if lap % 2 == 0 {
+        if lap.is_multiple_of(2) {
             c.sort_unstable_by_key(|&(x, y)| (y, if y % 2 == 0 { x } else { -x }));
         } else {
             c.sort_unstable_by_key(|&(x, y)| (x, if x % 2 == 0 { y } else { -y }));
