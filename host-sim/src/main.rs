@@ -35,6 +35,9 @@ enum Command {
     /// Exploration: the robot picks its next view by information gain, against random and nearest-frontier
     /// choice; accuracy vs distance driven (out/explore.png).
     Explore(host_sim::explore::ExploreArgs),
+    /// The map scale for a robot over a labelled tile, chosen by validation, printed as the `const
+    /// MapConfig` a firmware pastes, with the RAM its map needs and whether its window holds the range.
+    Calibrate(host_sim::eval::cli::CalibrateArgs),
     /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
     Query(host_sim::eval::cli::QueryArgs),
     /// Receive robots' streams (serial port, file, pty or stdin) into the global map database (SQLite,
@@ -302,6 +305,7 @@ fn run() -> Result<()> {
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
+        Command::Calibrate(args) => host_sim::eval::cli::calibrate(&args),
         Command::Bench(args) => host_sim::bench::run(&args),
         Command::ViewBench(args) => host_sim::view_bench::run(&args),
         Command::Explore(args) => host_sim::explore::explore(&args),
