@@ -104,7 +104,7 @@ pub mod wire;
 pub use batch::RejectionCounts;
 pub use config::{ConfigError, KernelMode, MapConfig, Prior};
 pub use frame::{EncoderSettings, TickError, TickReport};
-pub use mapper::{DrainError, Mapper, SensorFrame, Setup, SetupError};
+pub use mapper::{DrainError, DrainReport, Mapper, SensorFrame, Setup, SetupError};
 pub use quant::packed_len;
 
 /// `docs/firmware.md` (the firmware author's guide), compiled so its examples run as doc tests.

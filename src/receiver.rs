@@ -223,6 +223,14 @@ impl<'a, 'b> Receipt<'a, 'b> {
     }
 }
 
+/// Whether a receiver may adopt `c`: valid for dimension `D` ([`SessionConfig::validate`]), and a kernel
+/// that per-voxel statistics can be gathered through — the voxel-offset kernel (`subvoxel_cells` 0) or one
+/// sub-cell per axis (1: its centre is the voxel's, so its weights are the voxel-offset kernel's, bit for
+/// bit). Finer sub-cells weigh each point by where it fell inside its voxel, which a summary does not say.
+pub fn receivable<const D: usize>(c: &SessionConfig) -> bool {
+    c.validate(D).is_ok() && c.subvoxel_cells <= 1
+}
+
 /// The receiving side of one link: a frame decoder with an `N`-byte buffer for `D`-dimensional sessions.
 pub struct Receiver<const D: usize, const N: usize> {
     decoder: FrameDecoder<N>,
@@ -313,7 +321,7 @@ impl<const D: usize, const N: usize> Receiver<D, N> {
         };
         if self.config.is_none() {
             if let Message::Session(c) = message {
-                if c.id() == header.config_id && c.validate(D).is_ok() {
+                if c.id() == header.config_id && receivable::<D>(&c) {
                     self.config = Some(c);
                 }
             }

@@ -121,12 +121,17 @@ fn map_integrate(rng: &mut Rng, batches: usize) -> Vec<u8> {
 }
 
 /// `frame_decoder`: a chunk size, then a robot's whole session as it goes over the link (D = 64, the
-/// default codec: the decoder target parses every summary).
-fn frame_decoder(rng: &mut Rng, chunk: u8, n: usize, forgets: bool) -> Vec<u8> {
+/// decoder target parses every summary with each of its codecs).
+fn frame_decoder(
+    rng: &mut Rng,
+    chunk: u8,
+    n: usize,
+    forgets: bool,
+    codec: SummaryCodec,
+) -> Vec<u8> {
     const D: usize = 64;
     let forgetting = forgets.then(|| latentbki::forget::Forgetting::new(40.0).unwrap());
-    let config = SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, 0)
-        .with_forgetting(forgetting);
+    let config = SessionConfig::new(&MapConfig::default(), D, codec, 0).with_forgetting(forgetting);
     let mut enc = FrameEncoder::<D, 4096, 512>::new(config, EncoderSettings::new(4, 8)).unwrap();
     let mut out = Buf(Vec::new());
     let mut live = Vec::new();
@@ -201,6 +206,16 @@ fn ack_reader(rng: &mut Rng, chunk: u8, n: u32) -> Vec<u8> {
     out
 }
 
+/// The fuzz target's Rice-coded lead band: 8 components, psi in 2 blocks.
+const RICE_LEAD: SummaryCodec = SummaryCodec {
+    mean_bits: 3,
+    psi_blocks: 2,
+    mean_bits_growth: 3,
+    lead: 8,
+    lead_bits: 3,
+    rice: true,
+};
+
 fn main() -> std::io::Result<()> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds");
     let mut rng = Rng(0x5EED);
@@ -225,12 +240,12 @@ fn main() -> std::io::Result<()> {
         (
             "frame_decoder",
             "session-whole",
-            frame_decoder(&mut rng, 255, 60, false),
+            frame_decoder(&mut rng, 255, 60, false, SummaryCodec::DEFAULT),
         ),
         (
             "frame_decoder",
             "session-chunked",
-            frame_decoder(&mut rng, 7, 30, false),
+            frame_decoder(&mut rng, 7, 30, false, SummaryCodec::DEFAULT),
         ),
         ("ack_reader", "acks-whole", ack_reader(&mut rng, 255, 24)),
         ("ack_reader", "acks-bytewise", ack_reader(&mut rng, 1, 12)),
@@ -244,7 +259,14 @@ fn main() -> std::io::Result<()> {
         (
             "frame_decoder",
             "session-forgetting",
-            frame_decoder(&mut rng, 255, 40, true),
+            frame_decoder(&mut rng, 255, 40, true, SummaryCodec::DEFAULT),
+        ),
+        // A Rice session with a lead band (the demo's codec; the target's Rice lead-band codec), so the
+        // rest step's predictor (protocol 5) is reached from the first input.
+        (
+            "frame_decoder",
+            "session-rice-lead",
+            frame_decoder(&mut rng, 255, 40, false, RICE_LEAD),
         ),
     ];
     for (target, name, bytes) in seeds {

@@ -289,6 +289,18 @@ mod tests {
         );
     }
 
+    /// The spec's size: the largest acknowledgement (every varint at its longest) is 31 bytes on the wire.
+    #[test]
+    fn the_largest_acknowledgement_is_31_bytes() {
+        let a = Ack {
+            robot: u16::MAX,
+            session: u32::MAX,
+            ..ack(u32::MAX, u64::MAX)
+        };
+        let mut wire = [0u8; 64];
+        assert_eq!((a.encode(&mut wire), MAX_ACK_WIRE), (Some(31), 31));
+    }
+
     #[test]
     fn acknowledgements_round_trip_and_bad_bytes_are_refused() {
         let mut wire = [0u8; MAX_ACK_WIRE];

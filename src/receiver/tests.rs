@@ -172,3 +172,35 @@ fn acknowledgements_free_the_robot_and_lost_frames_are_resent() {
     assert_eq!(enc.unacknowledged(), 0);
     assert!(enc.stats().resent > 0);
 }
+
+/// A session whose kernel cannot be gathered from per-voxel statistics (sub-voxel cells ≥ 2) is never
+/// adopted: its frames are refused as another configuration, not tracked, not acknowledged. One sub-cell
+/// per axis (the voxel-offset kernel's weights) is adopted.
+#[test]
+fn a_session_with_sub_voxel_cells_is_refused_and_one_cell_is_adopted() {
+    use crate::config::{KernelMode, Prior};
+    for (cells, adopted) in [(2u8, false), (8, false), (1, true)] {
+        let map =
+            MapConfig::new(0.1, 0.3, 3, Prior::DEFAULT, KernelMode::SubVoxel { cells }).unwrap();
+        let c = SessionConfig::new(&map, D, SummaryCodec::DEFAULT, NO_FEATURE_SPACE);
+        assert_eq!(receivable::<D>(&c), adopted);
+        let mut enc = Enc::new(c, EncoderSettings::new(1, 2)).unwrap();
+        enc.evict(live(VoxelKey::new(1, 0, 0), &obs(1), 0)).unwrap();
+        let mut out = Vec::new();
+        enc.tick(&mut out, 10_000, core::iter::empty()).unwrap();
+        let mut rx = Receiver::<D, 512>::new(None);
+        let mut sessions = Sessions::<2>::new();
+        let got = run(&mut rx, &mut sessions, &out);
+        assert_eq!(got.len(), 2, "{cells}");
+        if adopted {
+            assert!(got.iter().all(Result::is_ok), "{cells}: {got:?}");
+            assert_eq!(rx.config(), Some(&c));
+        } else {
+            assert!(got
+                .iter()
+                .all(|r| matches!(r, Err((Refusal::WrongConfig, None)))));
+            assert_eq!((rx.config(), sessions.iter().count()), (None, 0));
+            assert_eq!(rx.refusals().wrong_config, 2);
+        }
+    }
+}

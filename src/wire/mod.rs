@@ -38,7 +38,7 @@ pub use summary::{
 };
 
 /// Protocol version: byte 0 of every frame body. Bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u8 = 4;
+pub const PROTOCOL_VERSION: u8 = 5;
 
 /// CRC-32 used for frames, configuration ids and feature-space ids (ISO-HDLC: zlib, Ethernet, PNG).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);

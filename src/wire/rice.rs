@@ -223,10 +223,12 @@ fn step_codes(policy: Policy, norm_codes: [u8; 2], count: u32) -> [u8; 2] {
 }
 
 /// The rest band's step code a receiver predicts from the lead band's, for a summary of `count` points:
-/// `lead` − 5 − 2·min(⌊log₂ n⌋, 6) (the default policy's offsets: what it sends needs one bit).
+/// `lead` + 5 + 2·min(⌊log₂ n⌋, 6). [`Policy::DEFAULT`] makes the rest step coarser than the lead's by
+/// (52 − 47) eighths and by (4 − 2) eighths per doubling, so what it sends is predicted exactly and its
+/// residual, zigzag(0), is the one bit `0` (protocol 5; protocol 4 subtracted, ≈ 10 bits a summary).
 fn predicted_rest(lead: u8, count: u32) -> i32 {
     let doublings = if count > 1 { count.ilog2().min(6) } else { 0 } as i32;
-    i32::from(lead) - 5 - 2 * doublings
+    i32::from(lead) + 5 + 2 * doublings
 }
 
 /// Bits of the Exp-Golomb code of v.
@@ -417,6 +419,22 @@ mod tests {
             bit: 0,
         };
         assert_eq!(r.exp_golomb(), Err(WireError::Malformed));
+    }
+
+    /// The policy's two step codes differ by exactly what the receiver predicts, at every norm and count
+    /// away from the codes' ends (1 and 255).
+    #[test]
+    fn the_default_policy_steps_are_the_predicted_ones() {
+        for norm in 80u8..=190 {
+            for count in (1..=200).chain([1 << 10, 1 << 24]) {
+                let [lead, rest] = step_codes(Policy::DEFAULT, [norm; 2], count);
+                assert_eq!(
+                    i32::from(rest),
+                    predicted_rest(lead, count),
+                    "{norm} {count}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -243,3 +243,31 @@ fn a_rice_head_is_a_few_bits_per_field_and_round_trips_stamps() {
         assert!(decode_summary::<64>(codec, &mut base, &frame[..cut], &mut at).is_err());
     }
 }
+
+/// The default policy's rest step is what the receiver predicts from the lead's (`rest_step` is the one
+/// bit `0` the spec promises): c_R = c_L + 5 + 2·min(⌊log₂ n⌋, 6) whenever neither band's step was raised to
+/// keep its largest value within ±127 steps (one lead component carrying nearly all of ‖m‖).
+#[test]
+fn the_default_policy_rest_step_is_predicted_and_costs_one_bit() {
+    let (mut one_bit, mut all) = (0, 0);
+    for count in [1u32, 2, 3, 7, 8, 100, 1 << 10, 1 << 20] {
+        for seed in 1..40 {
+            let s = sample(seed, count as f32);
+            let mut codes = [0u8; 128];
+            encode_codes(RICE, &s, &mut codes).unwrap();
+            let mut r = rice::BitReader {
+                bytes: &codes,
+                bit: 0,
+            };
+            let [lead, rest] = rice::read_steps(&mut r, true, count).unwrap();
+            let d = if count > 1 { count.ilog2().min(6) } else { 0 };
+            let predicted = u32::from(rest) == u32::from(lead) + 5 + 2 * d;
+            // A predicted step is the bit `0`; any other is longer.
+            assert_eq!(predicted, r.bit == 9, "n = {count}, seed {seed}");
+            one_bit += usize::from(predicted);
+            all += 1;
+        }
+    }
+    // This sample puts half of ‖m‖² in one lead component: at many points its step is raised.
+    assert!(one_bit * 2 >= all, "{one_bit} of {all} one bit");
+}

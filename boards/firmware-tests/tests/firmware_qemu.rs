@@ -10,9 +10,10 @@
 //!
 //! A board's firmware ELF is taken from its environment variable if set (`LATENTBKI_FIRMWARE_ELF` for the
 //! an386, `…_ELF_AN385`, `…_ELF_RISCV32`), else it is built (`cargo build --release` in the board
-//! directory, with `boards/measure.sh`'s flags so that either reuses the other's build). Without the board's
-//! QEMU (`qemu-system-arm`, `qemu-system-riscv32`) its test is skipped with a message — except in CI
-//! (`CI=true`), where it must run.
+//! directory, with `boards/measure.sh`'s flags so that either reuses the other's build: CI builds each
+//! firmware once). Without the board's QEMU (`qemu-system-arm`, `qemu-system-riscv32`) or its Rust target a
+//! test fails with the one line that fixes it (`cargo xtask setup`); `LATENTBKI_NO_QEMU=1` makes them
+//! ignored instead (the crate's build script).
 
 use latentbki::frame::FrameDecoder;
 use latentbki::key::{to_map_frame, VoxelKey};
@@ -20,117 +21,16 @@ use latentbki::obs::ObsStats;
 use latentbki::quant::{packed_len, Cooling};
 use latentbki::wire::{parse_body, Message, SessionConfig};
 use latentbki::Mapper;
+use latentbki_firmware_tests::{Board, AN385, AN386, RISCV32_VIRT};
 use latentbki_selftest::{
     self as selftest, CategoryVectors, Chunk, Scenario, CATEGORIES, SELF_TEST, SELF_TEST_CAPACITY,
     SELF_TEST_FRAME_BYTES, SELF_TEST_QUEUE_BYTES,
 };
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::Command;
 
 const D: usize = 64;
 const P: usize = packed_len(D);
 type Robot = Mapper<D, SELF_TEST_CAPACITY, P, SELF_TEST_QUEUE_BYTES, SELF_TEST_FRAME_BYTES>;
-
-/// A QEMU board of `boards/`: where it is, what it builds for, what runs it.
-struct Board {
-    /// Directory under `boards/` (the binary is `latentbki-<dir>`).
-    dir: &'static str,
-    target: &'static str,
-    qemu: &'static str,
-    /// Environment variable naming a prebuilt ELF.
-    elf_var: &'static str,
-    /// How its firmware cools int8 sums (its target's [`Cooling::NATIVE`]): the twin cools the same way.
-    cooling: Cooling,
-}
-
-const AN386: Board = Board {
-    dir: "qemu-mps2-an386",
-    target: "thumbv7em-none-eabihf",
-    qemu: "qemu-system-arm",
-    elf_var: "LATENTBKI_FIRMWARE_ELF",
-    cooling: Cooling::Float,
-};
-const AN385: Board = Board {
-    dir: "qemu-mps2-an385",
-    target: "thumbv6m-none-eabi",
-    qemu: "qemu-system-arm",
-    elf_var: "LATENTBKI_FIRMWARE_ELF_AN385",
-    cooling: Cooling::Fixed,
-};
-const RISCV32_VIRT: Board = Board {
-    dir: "qemu-riscv32-virt",
-    target: "riscv32imac-unknown-none-elf",
-    qemu: "qemu-system-riscv32",
-    elf_var: "LATENTBKI_FIRMWARE_ELF_RISCV32",
-    cooling: Cooling::Fixed,
-};
-
-impl Board {
-    fn path(&self) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../boards")
-            .join(self.dir)
-    }
-
-    fn have_qemu(&self) -> bool {
-        Command::new(self.qemu)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-    }
-
-    fn firmware_elf(&self) -> PathBuf {
-        if let Some(p) = std::env::var_os(self.elf_var) {
-            return PathBuf::from(p);
-        }
-        let dir = self.path();
-        // measure.sh's RUSTFLAGS (fixed source paths): the same build, whichever of the two runs first.
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("..")
-            .canonicalize()
-            .unwrap();
-        let status = Command::new(env!("CARGO"))
-            .args(["build", "--release", "--quiet"])
-            .current_dir(&dir)
-            .env("CARGO_TARGET_DIR", dir.join("target"))
-            .env(
-                "RUSTFLAGS",
-                format!("--remap-path-prefix={}=/latentbki", root.display()),
-            )
-            .status()
-            .expect("run cargo build for the firmware");
-        assert!(status.success(), "{} firmware build failed", self.dir);
-        dir.join(format!(
-            "target/{}/release/latentbki-{}",
-            self.target, self.dir
-        ))
-    }
-}
-
-/// Run the firmware in QEMU: (UART bytes, semihosting stdout).
-fn run_firmware(board: &Board, elf: &Path) -> (Vec<u8>, String) {
-    let dir = tempfile::tempdir().unwrap();
-    let uart = dir.path().join("uart.bin");
-    let out = Command::new(board.path().join("run-qemu.sh"))
-        .arg(elf)
-        .env("QEMU_SERIAL", &uart)
-        .env_remove("QEMU_PLUGIN")
-        .output()
-        .expect("run qemu");
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "firmware exited with {:?}\nstdout:\n{stdout}\nstderr:\n{}",
-        out.status.code(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(
-        stdout.lines().any(|l| l == "done"),
-        "no `done` line:\n{stdout}"
-    );
-    (std::fs::read(&uart).unwrap(), stdout)
-}
 
 /// What the host twin computes: the same scenarios through the same core code, plus the ground truth
 /// (per voxel, how many points of each category fell in it).
@@ -236,37 +136,38 @@ fn decode(bytes: &[u8]) -> (Global, u32, u32) {
 }
 
 #[test]
+#[cfg_attr(
+    latentbki_no_qemu,
+    ignore = "LATENTBKI_NO_QEMU is set: the QEMU firmware tests are opted out"
+)]
 fn cortex_m4f_firmware_in_qemu_streams_the_map_the_host_twin_computes() {
     streams_the_map_the_host_twin_computes(&AN386);
 }
 
 #[test]
+#[cfg_attr(
+    latentbki_no_qemu,
+    ignore = "LATENTBKI_NO_QEMU is set: the QEMU firmware tests are opted out"
+)]
 fn thumbv6m_firmware_in_qemu_streams_the_map_the_host_twin_computes() {
     streams_the_map_the_host_twin_computes(&AN385);
 }
 
 #[test]
+#[cfg_attr(
+    latentbki_no_qemu,
+    ignore = "LATENTBKI_NO_QEMU is set: the QEMU firmware tests are opted out"
+)]
 fn riscv32_firmware_in_qemu_streams_the_map_the_host_twin_computes() {
     streams_the_map_the_host_twin_computes(&RISCV32_VIRT);
 }
 
 fn streams_the_map_the_host_twin_computes(board: &Board) {
-    if !board.have_qemu() {
-        let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
-        assert!(
-            !ci,
-            "CI=true but {} is missing: .ci/run must install it",
-            board.qemu
-        );
-        eprintln!(
-            "SKIPPED {}: {} not found (apt-get install qemu-system-arm qemu-system-misc); set CI=true to make \
-             this a failure",
-            board.dir, board.qemu
-        );
-        return;
+    if let Err(line) = board.ready() {
+        panic!("{line}");
     }
     let elf = board.firmware_elf();
-    let (uart, stdout) = run_firmware(board, &elf);
+    let (uart, stdout) = board.run_firmware(&elf);
     let twin = twin(board.cooling);
 
     // The firmware's own report agrees with the twin's, scenario by scenario.
