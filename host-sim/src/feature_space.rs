@@ -93,7 +93,7 @@ impl FeatureSpace {
             .iter()
             .flatten()
             .fold(0.0f32, |m, v| m.max(v.abs()));
-        if !(largest > 0.0) {
+        if largest.is_nan() || largest <= 0.0 {
             bail!("--classes: the classes' embeddings coincide with their mean: nothing to tell apart");
         }
         let scale = largest / 127.0;
