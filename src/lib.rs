@@ -110,7 +110,7 @@ pub use classes::{ClassPrototypes, MixError};
 pub use config::{ConfigError, KernelMode, MapConfig, Prior};
 pub use frame::{EncoderSettings, TickError, TickReport};
 pub use key::KeyError;
-pub use mapper::{DrainError, Mapper, SensorFrame, Setup, SetupError};
+pub use mapper::{DrainError, DrainReport, Mapper, SensorFrame, Setup, SetupError};
 pub use quant::packed_len;
 pub use wire::WireError;
 

@@ -35,6 +35,9 @@ enum Command {
     /// Exploration: the robot picks its next view by information gain, against random and nearest-frontier
     /// choice; accuracy vs distance driven (out/explore.png).
     Explore(host_sim::explore::ExploreArgs),
+    /// The map scale for a robot over a labelled tile, chosen by validation, printed as the `const
+    /// MapConfig` a firmware pastes, with the RAM its map needs and whether its window holds the range.
+    Calibrate(host_sim::eval::cli::CalibrateArgs),
     /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
     Query(host_sim::eval::cli::QueryArgs),
     /// Receive robots' streams (serial port, file, pty or stdin) into the global map database (SQLite,
@@ -275,14 +278,8 @@ fn run() -> Result<()> {
                 latentbki::wire::NO_FEATURE_SPACE,
             );
             let radio = host_sim::demo_radio::DemoRadio::new(session, &args.link)?;
-            if args.view.wanted() {
-                args.view.check()?;
-                let v = host_sim::base_station::view::Viewer::start(
-                    host_sim::base_station::cli::view_options(&args.view, None, None),
-                )?;
-                if let (Some(a), Some(port)) = (args.view.view, v.port()) {
-                    println!("viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)", a.ip());
-                }
+            // The view decodes once the run has fitted the robot's feature space (`Radio::feature_space`).
+            if let Some(v) = host_sim::base_station::cli::start_view(&args.view, None, None)? {
                 radio
                     .lock()
                     .map_err(|_| anyhow::anyhow!("link state poisoned"))?
@@ -303,12 +300,15 @@ fn run() -> Result<()> {
                 radio.compare_reference(&r.mapper.snapshot());
             }
             println!("{}", radio.summary());
-            if let Some(s) = radio.finish_viewer() {
-                host_sim::base_station::cli::print_view_summary(&s);
+            let viewer = radio.take_viewer();
+            drop(radio);
+            if let Some(v) = viewer {
+                host_sim::base_station::cli::serve_until_interrupted(v, &args.view)?;
             }
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
+        Command::Calibrate(args) => host_sim::eval::cli::calibrate(&args),
         Command::Bench(args) => host_sim::bench::run(&args),
         Command::ViewBench(args) => host_sim::view_bench::run(&args),
         Command::Explore(args) => host_sim::explore::explore(&args),

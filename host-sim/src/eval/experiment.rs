@@ -142,6 +142,7 @@ pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame
                 points: Vec::new(),
                 map_points: Vec::new(),
                 features: Vec::new(),
+                classes: Vec::new(),
                 held_points: Vec::new(),
                 held_classes: Vec::new(),
                 held_features: Vec::new(),
@@ -159,6 +160,7 @@ pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame
                     out.map_points
                         .push(latentbki::key::to_map_frame(&f.pose, s));
                     out.features.push(y);
+                    out.classes.push(p.class);
                 }
             }
             out
@@ -278,7 +280,10 @@ fn build(
                 with_filter(config, f)?,
                 setup.device_window,
                 dec.mean_weights,
-                link,
+                link.map(|mut l| {
+                    l.feature_space(&dec.classes, &dec.pca, &dec.decoder);
+                    l
+                }),
             )
             .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?,
         ),

@@ -47,6 +47,8 @@ pub struct EncodedFrame {
     pub map_points: Vec<[f32; 3]>,
     /// Their compressed features.
     pub features: Vec<Feature>,
+    /// Their true classes (what the scale search validates against; no map reads them).
+    pub classes: Vec<u16>,
     /// Held-out points, map frame.
     pub held_points: Vec<[f32; 3]>,
     /// Their true classes.
@@ -275,6 +277,15 @@ pub trait Radio: Send {
     /// The robot's setup, adjusted for this link (back channel, live updates).
     fn setup(&self, setup: Setup) -> Setup {
         setup
+    }
+    /// Before the first frame: the feature space the robot's features live in (the class names, the PCA
+    /// and the codebook that decodes them), e.g. for the base station's live view.
+    fn feature_space(
+        &mut self,
+        _classes: &[String],
+        _pca: &latentbki::decode::Pca<D, { crate::sim::vocab::FULL_DIM }>,
+        _decoder: &Decoder,
+    ) {
     }
     /// After each sensor frame: the robot's tick over the link, and whatever comes back.
     fn tick(&mut self, robot: &mut DeviceRobot);

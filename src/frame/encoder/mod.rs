@@ -174,6 +174,13 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     now: u32,
     /// Bytes written again, wrapping.
     resent_bytes: u32,
+    /// The frame in `scratch` whose write has not succeeded yet (`scheduler::PENDING_*`; 0: none), its wire
+    /// length, the queue entries it carries and its live summaries. Plain fields, so that [`Self::EMPTY`]
+    /// stays all zero.
+    pending_kind: u8,
+    pending_len: usize,
+    pending_from_queue: usize,
+    pending_live: u32,
 }
 
 mod packer;
@@ -245,6 +252,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         resend_len: 0,
         now: 0,
         resent_bytes: 0,
+        pending_kind: scheduler::PENDING_NONE,
+        pending_len: 0,
+        pending_from_queue: 0,
+        pending_live: 0,
     };
 
     /// An encoder for one session. Fails if the configuration is invalid for D, if the queue cannot hold
@@ -279,6 +290,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.resend_len = 0;
         self.now = 0;
         self.resent_bytes = 0;
+        self.drop_pending();
         config.validate(D)?;
         let resend = settings.resend.bytes as usize;
         if settings.resend.is_on() && (resend > QB || resend < N + 11) {
@@ -326,6 +338,14 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.entry_len = 0;
         self.capacity = 0;
         self.ring = Ring::EMPTY;
+        self.drop_pending();
+    }
+
+    pub(super) fn drop_pending(&mut self) {
+        self.pending_kind = scheduler::PENDING_NONE;
+        self.pending_len = 0;
+        self.pending_from_queue = 0;
+        self.pending_live = 0;
     }
 
     /// Whether a session is configured.
