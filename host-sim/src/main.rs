@@ -52,6 +52,9 @@ enum Command {
     /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
     /// writes it).
     MapQuery(host_sim::base_station::cli::MapQueryArgs),
+    /// The feature space of a robot's classes: the PCA the base station decodes with (DIR/pca.npz), the
+    /// firmware's constants (DIR/feature_space.rs: id, int8 scale, per-class int8 prototypes).
+    FeatureSpace(host_sim::feature_space::FeatureSpaceArgs),
     /// Re-embed the vocabulary with the real text encoder and write the table (feature `encoder`).
     #[cfg(feature = "encoder")]
     EmbedVocab(EmbedVocabArgs),
@@ -332,6 +335,7 @@ fn run() -> Result<()> {
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
         Command::MapInfo(args) => host_sim::base_station::cli::map_info(&args),
         Command::MapQuery(args) => host_sim::base_station::cli::map_query(&args),
+        Command::FeatureSpace(args) => host_sim::feature_space::run(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
             let clouds = args.frames.iter().filter(|p| is_point_cloud(p)).count();

@@ -473,7 +473,8 @@ where
         let done = match mapper.drain(w) {
             Ok(_) => true,
             Err(DrainError::Write(e)) => return Err(RunError::Write(e)),
-            Err(DrainError::Stuck) => false,
+            // Stuck (or a reason a later version adds): acknowledgements may free the re-send buffer.
+            Err(_) => false,
         };
         back.acknowledge_all(robot, session, mapper.encoder().next_seq());
         let Ok(read) = mapper.poll_acks(&mut back);
