@@ -35,6 +35,7 @@ pub use tap::{EvictionTap, NoTap};
 /// Why [`Mapper::drain`] stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum DrainError<E> {
     /// The writer failed; what was not sent stays in the map or the encoder's queue.
     Write(E),
@@ -43,6 +44,19 @@ pub enum DrainError<E> {
     /// ([`Mapper::poll_acks`]) and drain again.
     Stuck,
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for DrainError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Write(e) => write!(f, "drain: writing to the link failed ({e:?}); what was not sent is kept"),
+            Self::Stuck => f.write_str(
+                "drain: a voxel cannot be sent (frame too small for a summary, no session, or the re-send buffer full of unacknowledged frames)",
+            ),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for DrainError<E> {}
 
 /// What one [`Mapper::drain_within`] call did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -117,13 +117,29 @@ pub struct TickReport {
     pub resent_bytes: usize,
 }
 
-/// Why a tick stopped early.
+/// Why a tick stopped early. Deliberately not `#[non_exhaustive]`: a tick fails only when its writer does,
+/// so with an infallible writer (`Error = Infallible`) `let Ok(report) = mapper.tick(…);` needs no error
+/// path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum TickError<E> {
     /// The writer failed; frames before it were written (see the report), the queue keeps the rest.
     Write(E, TickReport),
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for TickError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Write(e, r) => write!(
+                f,
+                "writing to the link failed ({e:?}) after {} frames ({} B); the queue keeps the rest",
+                r.frames, r.bytes
+            ),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for TickError<E> {}
 
 /// Streams voxel summaries as frames. `D`: feature dimension; `QB`: bytes of queue for evicted voxels;
 /// `N`: largest frame on the wire (bytes, delimiters included).

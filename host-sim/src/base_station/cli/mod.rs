@@ -10,7 +10,7 @@
 //! The options are in `args`, the reading of the user's vocabulary (`--pca`, `--classes`, `--query`) in
 //! `vocabulary`, the links in `links`, the receiving loop in `receive`, the merge of databases in `merge`.
 
-use super::export::{write_ply, write_pngs};
+use super::export::write_ply;
 use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
 use super::view::Viewer;
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
@@ -31,6 +31,7 @@ macro_rules! say {
 
 mod args;
 pub mod links;
+mod pictures;
 mod receive;
 mod view;
 mod vocabulary;
@@ -73,13 +74,18 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
     Ok(())
 }
 
-/// Check the output options before anything is read.
+/// Check the output options before anything is read. Their folders are created when they are written
+/// (a folder that is a file, or an output that is a folder, is refused here).
 fn check_outputs(out: &OutputArgs) -> Result<()> {
+    let check = |flag: &str, p: &Path, is_prefix: bool| match p.parent() {
+        Some(f) if !f.as_os_str().is_empty() && !f.exists() => Ok(()),
+        _ => check_output(flag, p, is_prefix),
+    };
     if let Some(p) = &out.png {
-        check_output("--png", p, true)?;
+        check("--png", p, true)?;
     }
     if let Some(p) = &out.ply {
-        check_output("--ply", p, false)?;
+        check("--ply", p, false)?;
     }
     Ok(())
 }
@@ -142,11 +148,16 @@ fn show(
         Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
     let cb = vocab.map_or(&empty, |v| &v.1);
     if let Some(prefix) = &out.png {
-        for f in write_pngs(map, cb, query.map(|q| (q, 0)), prefix, out.scale)? {
+        let query = query.zip(out.query.as_deref());
+        for f in pictures::write(map, vocab, query, prefix, out.scale)? {
             say!("wrote {}", f.display());
         }
     }
     if let Some(p) = &out.ply {
+        if let Some(folder) = p.parent().filter(|f| !f.as_os_str().is_empty()) {
+            std::fs::create_dir_all(folder)
+                .with_context(|| format!("--ply: creating the folder {}", folder.display()))?;
+        }
         write_ply(map, cb, p)?;
         say!("wrote {}", p.display());
     }
