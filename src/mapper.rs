@@ -409,7 +409,7 @@ impl<
                         report.done = true;
                         Ok(report)
                     }
-                    Ok(None) if left >= N => Err(DrainError::Stuck),
+                    Ok(None) if left >= N && report.bytes == 0 => Err(DrainError::Stuck),
                     Ok(None) => Ok(report),
                     Err(e) => Err(DrainError::Write(e)),
                 };
@@ -419,8 +419,8 @@ impl<
                 .tick(w, left, core::iter::empty::<Evicted<'_, D>>())?;
             report.bytes += sent.bytes;
             if sent.frames == sent.resent && n == 0 {
-                // No progress: out of budget, or (a whole frame's budget left) stuck.
-                return if budget.saturating_sub(report.bytes) >= N {
+                // No progress: out of budget, or (nothing written with a whole frame's budget) stuck.
+                return if report.bytes == 0 && budget >= N {
                     Err(DrainError::Stuck)
                 } else {
                     Ok(report)

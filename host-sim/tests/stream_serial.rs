@@ -239,7 +239,7 @@ fn a_robot_on_a_lossy_pty_loses_nothing_through_a_base_station_killed_midway() {
     for frame in 0..scenario.frames {
         let t = Instant::now();
         integrate_frame(
-            &scenario.scene,
+            scenario.scene,
             frame,
             0.0,
             &mut rig.robot,

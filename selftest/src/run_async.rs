@@ -46,7 +46,7 @@ where
     for frame in 0..scenario.frames {
         mapper.set_time(frame);
         let f = integrate_frame(
-            &scenario.scene,
+            scenario.scene,
             frame,
             scenario.int8_scale,
             mapper,
@@ -69,7 +69,8 @@ where
         let done = match mapper.drain_async(w).await {
             Ok(_) => true,
             Err(DrainError::Write(e)) => return Err(RunError::Write(e)),
-            Err(DrainError::Stuck) => false,
+            // Stuck (or a reason a later version adds): acknowledgements may free the re-send buffer.
+            Err(_) => false,
         };
         back.acknowledge_all(robot, session, mapper.encoder().next_seq());
         let Ok(read) = mapper.poll_acks_async(&mut back).await;

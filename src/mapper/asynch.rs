@@ -119,7 +119,7 @@ impl<
                         report.done = true;
                         Ok(report)
                     }
-                    Ok(None) if left >= N => Err(DrainError::Stuck),
+                    Ok(None) if left >= N && report.bytes == 0 => Err(DrainError::Stuck),
                     Ok(None) => Ok(report),
                     Err(e) => Err(DrainError::Write(e)),
                 };
@@ -130,7 +130,7 @@ impl<
                 .await?;
             report.bytes += sent.bytes;
             if sent.frames == sent.resent && n == 0 {
-                return if budget.saturating_sub(report.bytes) >= N {
+                return if report.bytes == 0 && budget >= N {
                     Err(DrainError::Stuck)
                 } else {
                     Ok(report)

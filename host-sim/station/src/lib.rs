@@ -22,6 +22,7 @@
 
 pub mod export;
 pub mod global_map;
+mod merge;
 pub mod obs_map;
 pub mod png_io;
 pub mod store;
@@ -29,7 +30,8 @@ pub mod store;
 pub mod view;
 
 pub use global_map::{
-    Applied, ContributionId, GlobalMap, GlobalVoxel, RecordError, Uncertainty, VOCAB_CAP,
+    Applied, ContributionId, GlobalMap, GlobalVoxel, MergeError, MergeReport, RecordError,
+    Uncertainty, VOCAB_CAP,
 };
 pub use obs_map::ObsMap;
 

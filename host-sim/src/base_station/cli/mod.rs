@@ -16,12 +16,13 @@ use super::view::Viewer;
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 
 /// Where the report goes: stdout, or stderr under `--stdio` (stdout carries the acknowledgements).
-static REPORT_TO_STDERR: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+pub(crate) static REPORT_TO_STDERR: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
 
 /// `println!` to the report's stream.
 macro_rules! say {
     ($($t:tt)*) => {
-        if REPORT_TO_STDERR.load(std::sync::atomic::Ordering::Relaxed) {
+        if $crate::base_station::cli::REPORT_TO_STDERR.load(std::sync::atomic::Ordering::Relaxed) {
             eprintln!($($t)*)
         } else {
             println!($($t)*)
@@ -31,6 +32,7 @@ macro_rules! say {
 
 mod args;
 pub mod links;
+mod merge;
 mod pictures;
 mod receive;
 mod view;
@@ -38,6 +40,7 @@ mod vocabulary;
 use anyhow::{bail, Context, Result};
 pub use args::{BaseStationArgs, MapInfoArgs, MapQueryArgs, OutputArgs, ViewArgs};
 use latentbki::decode::Codebook;
+pub use merge::{map_merge, MapMergeArgs};
 pub use receive::{channel, pump, pump_with, spawn_reader, Ending, LinkReport, PumpOptions};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;

@@ -332,15 +332,22 @@ impl<const D: usize> GlobalVoxel<D> {
 
 /// One step of the settled fold: merge `part` (at the later stamp when the session forgets).
 fn fold<const D: usize>(s: &mut Stamped<D>, forgetting: Option<&Forgetting>, part: &Part<D>) {
+    let p = Stamped {
+        obs: part.obs,
+        time: part.time,
+    };
+    fold_stamped(s, forgetting, &p);
+}
+
+/// `s` ⊕ `other` (at the later stamp when the session forgets).
+fn fold_stamped<const D: usize>(
+    s: &mut Stamped<D>,
+    forgetting: Option<&Forgetting>,
+    other: &Stamped<D>,
+) {
     match forgetting {
-        Some(f) => s.merge(
-            f,
-            &Stamped {
-                obs: part.obs,
-                time: part.time,
-            },
-        ),
-        None => s.obs.merge(&part.obs),
+        Some(f) => s.merge(f, other),
+        None => s.obs.merge(&other.obs),
     }
 }
 
@@ -680,6 +687,9 @@ impl<const D: usize> ObsLookup<D> for GlobalMap<D> {
         self.observations(&key)
     }
 }
+
+mod merge;
+pub use merge::{config_difference, MergeError, MergeReport};
 
 #[cfg(test)]
 mod tests;
