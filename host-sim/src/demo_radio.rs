@@ -177,7 +177,7 @@ pub struct DemoRadio {
     /// The base station against the robot's own map (what the wire alone costs).
     wire_error: Option<(f64, f64, usize)>,
     /// The live view / recording of the base station, if asked for.
-    viewer: Option<crate::base_station::view::Viewer<D>>,
+    viewer: Option<crate::base_station::cli::StationViewer>,
 }
 
 impl DemoRadio {
@@ -208,14 +208,14 @@ impl DemoRadio {
     }
 
     /// Show the base station's map in `viewer` as frames arrive.
-    pub fn attach_viewer(&mut self, viewer: crate::base_station::view::Viewer<D>) {
+    pub fn attach_viewer(&mut self, viewer: crate::base_station::cli::StationViewer) {
         self.base.watch();
         self.viewer = Some(viewer);
     }
 
-    /// Stop the viewer (at the end of the run) and summarise what it sent.
-    pub fn finish_viewer(&mut self) -> Option<crate::base_station::view::ViewerSummary> {
-        self.viewer.take().map(|v| v.finish())
+    /// The viewer, at the end of the run (to keep serving, then finish).
+    pub fn take_viewer(&mut self) -> Option<crate::base_station::cli::StationViewer> {
+        self.viewer.take()
     }
 
     /// Deliver what the air carries this tick, both ways, and move its clocks.
@@ -483,6 +483,25 @@ impl Radio for DemoRadioLink {
             link: setup.link.with_resend(resend),
             codec: r.config.codec,
             ..setup
+        }
+    }
+    fn feature_space(
+        &mut self,
+        classes: &[String],
+        pca: &latentbki::decode::Pca<D, { crate::sim::vocab::FULL_DIM }>,
+        decoder: &Decoder,
+    ) {
+        if let Some(v) = self.0.lock().ok().as_ref().and_then(|r| r.viewer.as_ref()) {
+            v.set_vocabulary(crate::base_station::cli::vocabulary(
+                classes.to_vec(),
+                decoder.clone(),
+                Box::new(pca.clone()),
+            ));
+            // The heat layer starts on the query the demo pictures; a viewer types another.
+            let table = crate::sim::vocab::Vocabulary::builtin();
+            if let Some(q) = crate::eval::scenes::tile_query(classes, &table) {
+                v.set_phrase(&q);
+            }
         }
     }
     fn tick(&mut self, robot: &mut DeviceRobot) {

@@ -52,6 +52,9 @@ enum Command {
     /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
     /// writes it).
     MapQuery(host_sim::base_station::cli::MapQueryArgs),
+    /// The feature space of a robot's classes: the PCA the base station decodes with (DIR/pca.npz), the
+    /// firmware's constants (DIR/feature_space.rs: id, int8 scale, per-class int8 prototypes).
+    FeatureSpace(host_sim::feature_space::FeatureSpaceArgs),
     /// Re-embed the vocabulary with the real text encoder and write the table (feature `encoder`).
     #[cfg(feature = "encoder")]
     EmbedVocab(EmbedVocabArgs),
@@ -275,14 +278,8 @@ fn run() -> Result<()> {
                 latentbki::wire::NO_FEATURE_SPACE,
             );
             let radio = host_sim::demo_radio::DemoRadio::new(session, &args.link)?;
-            if args.view.wanted() {
-                args.view.check()?;
-                let v = host_sim::base_station::view::Viewer::start(
-                    host_sim::base_station::cli::view_options(&args.view, None, None),
-                )?;
-                if let (Some(a), Some(port)) = (args.view.view, v.port()) {
-                    println!("viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)", a.ip());
-                }
+            // The view decodes once the run has fitted the robot's feature space (`Radio::feature_space`).
+            if let Some(v) = host_sim::base_station::cli::start_view(&args.view, None, None)? {
                 radio
                     .lock()
                     .map_err(|_| anyhow::anyhow!("link state poisoned"))?
@@ -303,8 +300,10 @@ fn run() -> Result<()> {
                 radio.compare_reference(&r.mapper.snapshot());
             }
             println!("{}", radio.summary());
-            if let Some(s) = radio.finish_viewer() {
-                host_sim::base_station::cli::print_view_summary(&s);
+            let viewer = radio.take_viewer();
+            drop(radio);
+            if let Some(v) = viewer {
+                host_sim::base_station::cli::serve_until_interrupted(v, &args.view)?;
             }
             Ok(())
         }
@@ -336,6 +335,7 @@ fn run() -> Result<()> {
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
         Command::MapInfo(args) => host_sim::base_station::cli::map_info(&args),
         Command::MapQuery(args) => host_sim::base_station::cli::map_query(&args),
+        Command::FeatureSpace(args) => host_sim::feature_space::run(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
             let clouds = args.frames.iter().filter(|p| is_point_cloud(p)).count();

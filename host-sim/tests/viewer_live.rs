@@ -1,12 +1,17 @@
-//! `base-station --view` end to end, on loopback only: a robot stream goes in on stdin while independent
-//! clients watch.
+//! `base-station --view` and `demo --view` end to end, on loopback only: a robot stream goes in on stdin
+//! (or the demo's robot maps the tile) while independent clients watch.
 //!
 //! - The npm client `@foxglove/ws-protocol` (`host-sim/station/viewer-test/check.js`, pinned by its
 //!   lockfile) joins early (before the second half of the stream) and late (after all of it), decodes with
-//!   the advertised schemas, and checks the voxels and classes against `map-info` / `map-query` and the
-//!   heat layer's top voxels against `map-query --query` after setting the phrase itself.
+//!   the advertised schemas, and checks the voxels and classes against `map-info` / `map-query`, each
+//!   cube's colour against the legend, and the heat layer's top voxels against `map-query --query` after
+//!   setting the phrase itself. The late one (and both of the demo's) offer only the classic subprotocol
+//!   name `foxglove.websocket.v1`, as clients older than Lichtblick v1.22 do.
 //! - PyPI's `mcap` reader (`viewer-test/check_mcap.py`) checks the `--record` file and a `map-query --mcap`
-//!   export the same way.
+//!   export the same way, and that a reader seeking to any time rebuilds that time's whole scene.
+//! - `demo --view --record`: classes in their colours with a legend naming them, the heat of a phrase the
+//!   client sets, the final map served after the run until SIGINT (a client that connects then gets it
+//!   whole), and a recording that seeks.
 //! - A raw socket sends garbage, an unknown subscription and an oversized frame: refused and counted,
 //!   ingest unaffected. A client that subscribes and never reads leaves the database exactly as without it.
 //!
@@ -264,13 +269,17 @@ fn expectations(db: &Path, pca: &Path, dir: &Path) -> String {
     )
 }
 
-fn node_check(port: u16, expect: &Path, name: &str) -> Child {
+/// The classic name of the protocol (the only one clients older than Lichtblick v1.22 offer).
+const CLASSIC: &str = "foxglove.websocket.v1";
+
+fn node_check(port: u16, expect: &Path, name: &str, subprotocol: &str) -> Child {
     Command::new("node")
         .arg(viewer_test_dir().join("check.js"))
         .args(["--url", &format!("ws://127.0.0.1:{port}"), "--name", name])
+        .args(["--subprotocol", subprotocol])
         .arg("--expect")
         .arg(expect)
-        .args(["--timeout", "120"])
+        .args(["--timeout", "300"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -289,10 +298,18 @@ fn passed(child: Child) -> String {
 }
 
 fn mcap_check(file: &Path, expect: &Path) -> String {
+    python_check(&[file.as_os_str(), expect.as_os_str()])
+}
+
+/// A reader that seeks to any time of the file rebuilds that time's whole scene.
+fn mcap_seek_check(file: &Path) -> String {
+    python_check(&["--seek".as_ref(), file.as_os_str()])
+}
+
+fn python_check(args: &[&std::ffi::OsStr]) -> String {
     let out = Command::new(python())
         .arg(viewer_test_dir().join("check_mcap.py"))
-        .arg(file)
-        .arg(expect)
+        .args(args)
         .output()
         .unwrap();
     let text = format!(
@@ -317,14 +334,17 @@ fn live_view_matches_map_query_for_early_and_late_clients_and_recordings_replay(
     let mut station = start_station(&db, &pca, &["--record".as_ref(), rec.as_os_str()]);
     let half = stream.len() / 2;
     station.feed(&stream[..half]);
-    let early = node.then(|| node_check(station.port, &expect, "early"));
+    let early = node.then(|| node_check(station.port, &expect, "early", "foxglove.sdk.v1"));
     station.feed(&stream[half..]);
     let json = expectations(&db, &pca, dir.path());
     std::fs::write(&expect, json).unwrap();
     if let Some(early) = early {
         println!("{}", passed(early));
         // Joins after the whole stream is in: only the full scene on subscription can satisfy it.
-        println!("{}", passed(node_check(station.port, &expect, "late")));
+        println!(
+            "{}",
+            passed(node_check(station.port, &expect, "late", CLASSIC))
+        );
     }
     let summary = station.finish();
     println!("{summary}");
@@ -349,6 +369,7 @@ fn live_view_matches_map_query_for_early_and_late_clients_and_recordings_replay(
         if node {
             println!("{}", mcap_check(&rec, &expect));
         }
+        println!("{}", mcap_seek_check(&rec));
         let export = dir.path().join("export.mcap");
         let p = |x: &Path| x.as_os_str().to_owned();
         let out = run(&[
@@ -368,12 +389,17 @@ fn live_view_matches_map_query_for_early_and_late_clients_and_recordings_replay(
 
 /// A WebSocket client by hand: the handshake, then masked frames of any opcode and length.
 fn raw_client(port: u16) -> TcpStream {
+    raw_client_offering(port, "foxglove.sdk.v1").0
+}
+
+/// The handshake offering `protocols`; the socket and the reply's head.
+fn raw_client_offering(port: u16, protocols: &str) -> (TcpStream, String) {
     let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
     write!(
         s,
         "GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
          Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\
-         Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+         Sec-WebSocket-Protocol: {protocols}\r\n\r\n"
     )
     .unwrap();
     let mut head = Vec::new();
@@ -382,12 +408,40 @@ fn raw_client(port: u16) -> TcpStream {
         s.read_exact(&mut b).unwrap();
         head.push(b[0]);
     }
-    assert!(
-        head.starts_with(b"HTTP/1.1 101"),
-        "{}",
-        String::from_utf8_lossy(&head)
-    );
-    s
+    let head = String::from_utf8_lossy(&head).into_owned();
+    assert!(head.starts_with("HTTP/1.1 101"), "{head}");
+    (s, head)
+}
+
+/// The protocol the server accepted, from a reply's head.
+fn accepted(head: &str) -> Option<&str> {
+    head.lines().find_map(|l| {
+        let (k, v) = l.split_once(':')?;
+        k.eq_ignore_ascii_case("sec-websocket-protocol")
+            .then_some(v.trim())
+    })
+}
+
+/// Read one unmasked server frame's payload (text or binary; no fragmentation).
+fn read_frame(s: &mut TcpStream) -> Vec<u8> {
+    let mut h = [0u8; 2];
+    s.read_exact(&mut h).unwrap();
+    let len = match h[1] & 0x7f {
+        126 => {
+            let mut l = [0u8; 2];
+            s.read_exact(&mut l).unwrap();
+            u64::from(u16::from_be_bytes(l))
+        }
+        127 => {
+            let mut l = [0u8; 8];
+            s.read_exact(&mut l).unwrap();
+            u64::from_be_bytes(l)
+        }
+        n => u64::from(n),
+    };
+    let mut payload = vec![0u8; len as usize];
+    s.read_exact(&mut payload).unwrap();
+    payload
 }
 
 /// One masked frame header (and payload if given; the mask is zero, which leaves the payload as is).
@@ -483,6 +537,141 @@ fn bad_and_stalled_clients_are_refused_or_ignored_and_ingest_is_unchanged() {
         busy_rss < quiet_rss + 64 * 1024,
         "peak RSS {busy_rss} KiB with a stalled client, {quiet_rss} KiB without"
     );
+}
+
+#[test]
+fn every_name_of_the_protocol_is_accepted_and_unknown_ones_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let pca = dir.path().join("pca.npz");
+    host_sim::npy_io::write_pca_npz(&pca, &World::new(SummaryCodec::DEFAULT).pca).unwrap();
+    let db = dir.path().join("map.db");
+    let mut station = start_station(&db, &pca, &[]);
+    for (offer, want) in [
+        (CLASSIC, CLASSIC),
+        ("foxglove.sdk.v1", "foxglove.sdk.v1"),
+        ("foxglove.sdk.v1.1", "foxglove.sdk.v1.1"),
+        ("chat, foxglove.websocket.v1", CLASSIC),
+        ("foxglove.websocket.v1, foxglove.sdk.v1", "foxglove.sdk.v1"),
+    ] {
+        let (mut s, head) = raw_client_offering(station.port, offer);
+        assert_eq!(accepted(&head), Some(want), "offered {offer}: {head}");
+        // The protocol itself follows: the server's first message is its serverInfo.
+        let first = String::from_utf8(read_frame(&mut s)).unwrap();
+        assert!(
+            first.contains("\"op\":\"serverInfo\""),
+            "offered {offer}: {first}"
+        );
+    }
+    // No name the server knows: refused at the handshake, as the SDK refuses it.
+    let mut s = TcpStream::connect(("127.0.0.1", station.port)).unwrap();
+    write!(
+        s,
+        "GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\
+         Sec-WebSocket-Protocol: chat\r\n\r\n"
+    )
+    .unwrap();
+    let mut reply = String::new();
+    let _ = s.read_to_string(&mut reply);
+    assert!(reply.starts_with("HTTP/1.1 400"), "{reply}");
+    station.feed(&robot_stream(3, 2));
+    station.finish();
+}
+
+/// `demo --view --record`: the final map in colour to clients offering only the classic protocol name,
+/// served after the run until SIGINT, and a recording that seeks.
+#[test]
+fn demo_view_is_in_colour_for_classic_clients_stays_up_and_its_recording_seeks() {
+    let node = node_ready();
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("demo.mcap");
+    let expect = dir.path().join("expect.json");
+    let mut child = Command::new(exe())
+        .args(["demo", "--view", "127.0.0.1:0", "--view-hz", "5", "--out"])
+        .arg(dir.path().join("out"))
+        .arg("--record")
+        .arg(&rec)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut printed = String::new();
+    let mut next_line = |printed: &mut String| {
+        let mut line = String::new();
+        assert!(
+            stdout.read_line(&mut line).unwrap() > 0,
+            "the demo ended early:\n{printed}"
+        );
+        printed.push_str(&line);
+        line
+    };
+    let port: u16 = loop {
+        let line = next_line(&mut printed);
+        if let Some(rest) = line.trim().strip_prefix("viewer: serving ws://127.0.0.1:") {
+            break rest.split_whitespace().next().unwrap().parse().unwrap();
+        }
+    };
+    // Connected while the robot maps: it must end with the same whole scene as one that joins after.
+    let early = node.then(|| node_check(port, &expect, "demo-early", CLASSIC));
+    let voxels: usize = loop {
+        let line = next_line(&mut printed);
+        if let Some(rest) = line.trim().strip_prefix("viewer: recorded ") {
+            let n = rest.rsplit("last scene ").next().unwrap();
+            break n.trim_end_matches(" voxels").parse().unwrap();
+        }
+    };
+    let serving = next_line(&mut printed);
+    assert!(
+        serving
+            .starts_with("viewer: the run is over; still serving the final map at ws://127.0.0.1:")
+            && serving.contains("until interrupted"),
+        "{serving}"
+    );
+    assert!(voxels > 1000, "{printed}");
+    // A phrase the demo does not start with (it starts on its pictured query, "house").
+    std::fs::write(
+        &expect,
+        format!("{{\"count\": {voxels}, \"phrase\": \"tree\"}}"),
+    )
+    .unwrap();
+    if let Some(early) = early {
+        println!("{}", passed(early));
+        // Joins after the run: the whole final scene from the subscription alone.
+        println!(
+            "{}",
+            passed(node_check(port, &expect, "demo-late", CLASSIC))
+        );
+    }
+    // Still serving: a classic handshake is answered after the run too.
+    let (mut s, head) = raw_client_offering(port, CLASSIC);
+    assert_eq!(accepted(&head), Some(CLASSIC));
+    assert!(String::from_utf8(read_frame(&mut s))
+        .unwrap()
+        .contains("serverInfo"));
+    drop(s);
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let mut rest = String::new();
+    stdout.read_to_string(&mut rest).unwrap();
+    assert!(child.wait().unwrap().success(), "{printed}{rest}");
+    println!("{printed}{rest}");
+    assert!(rest.contains("viewer: interrupted: stopping"), "{rest}");
+    assert!(
+        rest.contains(&format!("viewer: {voxels} voxels in the scene")),
+        "{rest}"
+    );
+    if node {
+        assert!(
+            rest.contains("viewer: query phrase to heat layer: median"),
+            "{rest}"
+        );
+    }
+    if mcap_ready() {
+        println!("{}", mcap_seek_check(&rec));
+    }
 }
 
 #[test]

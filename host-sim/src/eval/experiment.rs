@@ -280,7 +280,10 @@ fn build(
                 with_filter(config, f)?,
                 setup.device_window,
                 dec.mean_weights,
-                link,
+                link.map(|mut l| {
+                    l.feature_space(&dec.classes, &dec.pca, &dec.decoder);
+                    l
+                }),
             )
             .map_err(|err| anyhow::anyhow!("{}: {err:?}", method.label()))?,
         ),

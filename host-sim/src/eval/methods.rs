@@ -278,6 +278,15 @@ pub trait Radio: Send {
     fn setup(&self, setup: Setup) -> Setup {
         setup
     }
+    /// Before the first frame: the feature space the robot's features live in (the class names, the PCA
+    /// and the codebook that decodes them), e.g. for the base station's live view.
+    fn feature_space(
+        &mut self,
+        _classes: &[String],
+        _pca: &latentbki::decode::Pca<D, { crate::sim::vocab::FULL_DIM }>,
+        _decoder: &Decoder,
+    ) {
+    }
     /// After each sensor frame: the robot's tick over the link, and whatever comes back.
     fn tick(&mut self, robot: &mut DeviceRobot);
     /// End of the run: everything the robot holds goes out; `tap` sees every voxel handed to the link.

@@ -80,6 +80,27 @@ pub fn label_colour(label: usize) -> [u8; 3] {
     PALETTE[label % PALETTE.len()]
 }
 
+/// Natural colours of the classes people know by sight (ASPRS LiDAR classes, rooms); `None` for a name
+/// without one. One table for the demo's figures and the live view, so both paint a class alike.
+pub fn natural_colour(name: &str) -> Option<[u8; 3]> {
+    Some(match name {
+        "ground" => [166, 124, 82],
+        "low vegetation" => [170, 220, 100],
+        "medium vegetation" => [80, 170, 60],
+        "high vegetation" => [20, 100, 40],
+        "building" => [200, 60, 60],
+        "noise" => [255, 0, 255],
+        "wall" => [190, 190, 190],
+        "floor" => [230, 210, 170],
+        _ => return None,
+    })
+}
+
+/// A named class's colour: its natural colour, else the palette's by index.
+pub fn class_colour(name: &str, index: usize) -> [u8; 3] {
+    natural_colour(name).unwrap_or_else(|| label_colour(index))
+}
+
 /// A perceptual-ish dark-blue → yellow ramp for t in [0, 1] (viridis control points).
 pub fn ramp(t: f32) -> [u8; 3] {
     const STOPS: [[f32; 3]; 5] = [

@@ -1,15 +1,22 @@
 // An independent Foxglove WebSocket client (@foxglove/ws-protocol) that checks the base station's live view.
 //
 // Usage: node check.js --url ws://127.0.0.1:PORT --expect expect.json [--timeout SECONDS] [--name NAME]
+//        [--subprotocol foxglove.sdk.v1|foxglove.websocket.v1]
 //
-// It subscribes to every advertised topic, decodes each message with the schema the server advertises
-// (protobuf FileDescriptorSet through protobufjs, or JSON), applies scene updates as Foxglove does (entities
-// replace entities of the same id; deletions by id or all), and waits until `--expect` exists (the test
-// writes it from `map-info` / `map-query` once the stream is in). Then it checks, retrying until the
-// timeout while updates still arrive:
-//   1. the scene's voxels are exactly the map's (count and keys) and each voxel's class is map-query's;
-//   2. after it sets the `query` parameter to the expected phrase, the heat layer's top voxels are the
-//      ones `map-query --query` ranks top.
+// It offers only the named subprotocol (default `foxglove.sdk.v1`; `foxglove.websocket.v1` is the published
+// protocol's name, the only one older clients offer), subscribes to every advertised topic, decodes each
+// message with the schema the server advertises (protobuf FileDescriptorSet through protobufjs, or JSON),
+// applies scene updates as Foxglove does (entities replace entities of the same id; deletions by id or
+// all), and waits until `--expect` exists (the test writes it once the stream is in: `count` and `phrase`
+// always; from `map-info` / `map-query`, `classes`, `class_counts` and `top_keys`). Then it checks,
+// retrying until the timeout while updates still arrive:
+//   1. the scene holds `count` voxels on every layer (and, given `classes`, exactly the map's keys, each
+//      with map-query's class);
+//   2. every classes cube has its class's colour from the legend, the legend names every class, and the
+//      layer shows as many distinct colours as classes that have voxels;
+//   3. after it sets the `query` parameter to the phrase, the heat layer is re-sent whole with a score for
+//      every voxel (given `top_keys`: its top voxels are the ones `map-query --query` ranks top);
+//   4. the centre frame (`/tf`, map → map_centre) has arrived.
 // Exit 0 with one line "viewer-check NAME: ok ..." or 1 with what differs.
 "use strict";
 const fs = require("fs");
@@ -26,6 +33,7 @@ const url = arg("url");
 const expectPath = arg("expect");
 const timeoutMs = Number(arg("timeout", "60")) * 1000;
 const name = arg("name", "client");
+const subprotocol = arg("subprotocol", "foxglove.sdk.v1");
 if (!url || !expectPath) {
   console.error("usage: node check.js --url ws://HOST:PORT --expect expect.json");
   process.exit(2);
@@ -35,6 +43,9 @@ const subscriptions = new Map(); // subscription id -> {topic, decode(bytes) -> 
 const layers = new Map(); // topic -> Map(entity id -> {keys, values})
 let legend = null;
 let status = null;
+let centre = null;
+let phraseSentAt = 0;
+let heatAfterPhraseMs = null;
 let heatFullsAfterPhrase = 0;
 let phraseSent = false;
 let messages = 0;
@@ -73,9 +84,14 @@ function applySceneUpdate(topic, msg) {
     if (keys.length !== e.cubes.length || values.length !== keys.length) {
       throw new Error(`${topic} ${e.id}: ${e.cubes.length} cubes, ${keys.length} keys, ${values.length} values`);
     }
-    entities.set(e.id, { keys, values });
+    const byte = (v) => Math.round((v || 0) * 255);
+    const colours = e.cubes.map((c) => `${byte(c.color.r)},${byte(c.color.g)},${byte(c.color.b)}`);
+    entities.set(e.id, { keys, values, colours });
   }
-  if (topic === "/map/heat" && full && phraseSent) heatFullsAfterPhrase += 1;
+  if (topic === "/map/heat" && full && phraseSent) {
+    heatFullsAfterPhrase += 1;
+    if (heatAfterPhraseMs === null) heatAfterPhraseMs = Date.now() - phraseSentAt;
+  }
 }
 
 function voxels(topic) {
@@ -86,18 +102,46 @@ function voxels(topic) {
   return out;
 }
 
+let distinctColours = 0;
+let classesWithVoxels = 0;
+
+// Every classes cube in its class's legend colour; as many distinct colours as classes with voxels.
+function checkColours() {
+  if (!legend || !Array.isArray(legend.classes) || legend.classes.length === 0) return "the legend lists no classes";
+  const named = legend.classes.filter((c) => typeof c.class === "string" && c.class.length > 0);
+  if (named.length !== legend.classes.length) return `legend entries without a name: ${JSON.stringify(legend.classes)}`;
+  const colourOf = new Map(legend.classes.map((c) => [String(c.index), c.rgb.join(",")]));
+  const seen = new Set();
+  const perClass = new Map();
+  for (const { values, colours } of (layers.get("/map/classes") || new Map()).values()) {
+    for (let i = 0; i < values.length; i++) {
+      const want = colourOf.get(values[i]);
+      if (want === undefined) return `a voxel without a class (${values[i]}) on /map/classes`;
+      if (want !== colours[i]) return `a class ${values[i]} cube is ${colours[i]}, the legend says ${want}`;
+      seen.add(colours[i]);
+      perClass.set(values[i], (perClass.get(values[i]) || 0) + 1);
+    }
+  }
+  distinctColours = seen.size;
+  classesWithVoxels = perClass.size;
+  if (seen.size < perClass.size) return `${seen.size} distinct colours for ${perClass.size} classes`;
+  return null;
+}
+
 function checkMap(expect) {
   const classes = voxels("/map/classes");
-  if (classes.size !== expect.count) return `scene has ${classes.size} voxels, map-info says ${expect.count}`;
-  const counts = new Array(expect.class_counts.length).fill(0);
-  for (const [k, v] of classes) {
-    const want = expect.classes[k];
-    if (want === undefined) return `voxel ${k} is in the scene but not in the map`;
-    if (String(want) !== v) return `voxel ${k}: class ${v} in the scene, ${want} from map-query`;
-    counts[Number(v)] += 1;
-  }
-  if (JSON.stringify(counts) !== JSON.stringify(expect.class_counts)) {
-    return `class counts ${counts} in the scene, ${expect.class_counts} from map-query`;
+  if (classes.size !== expect.count) return `scene has ${classes.size} voxels, expected ${expect.count}`;
+  if (expect.classes) {
+    const counts = new Array(expect.class_counts.length).fill(0);
+    for (const [k, v] of classes) {
+      const want = expect.classes[k];
+      if (want === undefined) return `voxel ${k} is in the scene but not in the map`;
+      if (String(want) !== v) return `voxel ${k}: class ${v} in the scene, ${want} from map-query`;
+      counts[Number(v)] += 1;
+    }
+    if (JSON.stringify(counts) !== JSON.stringify(expect.class_counts)) {
+      return `class counts ${counts} in the scene, ${expect.class_counts} from map-query`;
+    }
   }
   for (const t of ["/map/heat", "/map/uncertainty", "/map/robots"]) {
     const n = voxels(t).size;
@@ -109,6 +153,8 @@ function checkMap(expect) {
 function checkHeat(expect) {
   if (heatFullsAfterPhrase === 0) return "the heat layer has not followed the phrase yet";
   const heat = [...voxels("/map/heat")].filter(([, s]) => s !== "").map(([k, s]) => [k, Number(s)]);
+  if (heat.length !== expect.count) return `${heat.length} of ${expect.count} voxels have a score`;
+  if (!expect.top_keys) return null;
   heat.sort((a, b) => b[1] - a[1]);
   const top = heat.slice(0, expect.top_keys.length).map(([k]) => k);
   const want = expect.top_keys;
@@ -119,7 +165,7 @@ function checkHeat(expect) {
 }
 
 const started = Date.now();
-const ws = new WebSocket(url, ["foxglove.sdk.v1"]);
+const ws = new WebSocket(url, [subprotocol]);
 const client = new FoxgloveClient({ ws });
 client.on("error", (e) => {
   console.error(`viewer-check ${name}: connection error: ${e && e.message}`);
@@ -136,6 +182,7 @@ client.on("message", ({ subscriptionId, data }) => {
   const msg = decode(new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
   if (topic === "/map/legend") legend = msg;
   else if (topic === "/link/status") status = msg;
+  else if (topic === "/tf") centre = msg.transforms.find((t) => t.childFrameId === "map_centre") || centre;
   else applySceneUpdate(topic, msg);
 });
 
@@ -155,9 +202,15 @@ const tick = setInterval(() => {
     lastProblem = mapProblem;
     return;
   }
+  const colourProblem = checkColours();
+  if (colourProblem) {
+    lastProblem = colourProblem;
+    return;
+  }
   if (!phraseSent) {
     client.setParameters([{ name: "query", value: expect.phrase }], "set-query");
     phraseSent = true;
+    phraseSentAt = Date.now();
     lastProblem = "phrase sent";
     return;
   }
@@ -166,8 +219,13 @@ const tick = setInterval(() => {
     lastProblem = heatProblem;
     return;
   }
-  if (!legend || legend.classes.length !== expect.class_counts.length || legend.query !== expect.phrase) {
+  const classCount = expect.class_counts ? expect.class_counts.length : legend.classes.length;
+  if (legend.classes.length !== classCount || legend.query !== expect.phrase || legend.query_error) {
     lastProblem = `legend ${JSON.stringify(legend)}`;
+    return;
+  }
+  if (!centre) {
+    lastProblem = "no centre frame on /tf";
     return;
   }
   if (!status || typeof status.frames !== "number") {
@@ -175,10 +233,14 @@ const tick = setInterval(() => {
     return;
   }
   clearInterval(tick);
+  const names = legend.classes.map((c) => c.class).join(", ");
   console.log(
-    `viewer-check ${name}: ok: ${expect.count} voxels and their classes equal map-info/map-query; ` +
-      `heat top ${expect.top_keys.length} for "${expect.phrase}" equal map-query --query; ` +
-      `${messages} messages; link frames ${status.frames}`,
+    `viewer-check ${name}: ok over ${ws.protocol}: ${expect.count} voxels` +
+      (expect.classes ? " and their classes equal map-info/map-query" : "") +
+      `; ${distinctColours} distinct class colours for ${classesWithVoxels} classes with voxels, legend names ${legend.classes.length} (${names}); ` +
+      `heat for "${expect.phrase}" re-sent whole ${heatAfterPhraseMs} ms after the phrase was set` +
+      (expect.top_keys ? `, top ${expect.top_keys.length} equal map-query --query` : "") +
+      `; ${messages} messages; link frames ${status.frames}`,
   );
   client.close();
   process.exit(0);

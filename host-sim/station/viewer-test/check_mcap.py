@@ -1,7 +1,15 @@
 """Replay a base station's MCAP (a `--record` or a `map-query --mcap` export) in PyPI's `mcap` reader and
-check it against `map-info` / `map-query`, as check.js does for the live view.
+check it against `map-info` / `map-query`, as check.js does for the live view; or check that it seeks.
 
 Usage: python3 check_mcap.py FILE.mcap expect.json
+       python3 check_mcap.py --seek FILE.mcap
+
+`--seek`: at every time a message was logged, a reader that seeks there (the file's index, newest message
+of each topic at or before that time, read backwards: what Foxglove and Lichtblick show after a seek)
+must rebuild from that one message per layer the same scene as a reader that applied every message from
+the start, and that scene must be whole (as many voxels as the legend of that time counts). The file must
+open on a map (at its first time, /map/classes holds voxels), and its last scene shows each class that has
+voxels in a distinct colour, named by the legend.
 
 Scene updates are applied in log order as Foxglove applies them (entities replace entities of the same
 id; deletions by id or all); protobuf messages are decoded with the schema the file carries
@@ -14,6 +22,119 @@ import sys
 
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+
+
+def apply(entities, msg):
+    """A SceneUpdate applied as Foxglove applies it: deletions (by id, or all), then entities by id."""
+    for d in msg.deletions:
+        if d.type == 1:
+            entities.clear()
+        else:
+            entities.pop(d.id, None)
+    for e in msg.entities:
+        meta = {kv.key: kv.value for kv in e.metadata}
+        keys = meta["voxels"].split(",") if meta.get("voxels") else []
+        values = [kv.value for kv in e.metadata if kv.key != "voxels"][0]
+        values = values.split(",") if values else [""] * len(keys)
+        colours = [
+            (round(c.color.r * 255), round(c.color.g * 255), round(c.color.b * 255)) for c in e.cubes
+        ]
+        assert len(keys) == len(e.cubes) == len(values), e.id
+        entities[e.id] = (keys, values, colours)
+    return entities
+
+
+def voxel_count(entities):
+    return sum(len(keys) for keys, _, _ in entities.values())
+
+
+def seek(path):
+    factory = DecoderFactory()
+    decoders = {}
+    decoded = {}  # (channel id, log time) -> decoded message
+    layers = {}
+    legend = None
+    problems = []
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
+        scene_topics = sorted(t for t in topics.values() if t.startswith("/map/") and t != "/map/legend")
+        messages = list(reader.iter_messages(log_time_order=True))
+        times = sorted({m.log_time for _, _, m in messages})
+        legend_at = {}
+        i = 0
+        checked = 0
+        snapshots = []
+        for t in times:
+            # The reader from the start: every message up to t.
+            while i < len(messages) and messages[i][2].log_time <= t:
+                schema, channel, message = messages[i]
+                i += 1
+                if channel.message_encoding == "json":
+                    if channel.topic == "/map/legend":
+                        legend = json.loads(message.data)
+                    continue
+                if channel.topic not in scene_topics:
+                    continue
+                if channel.id not in decoders:
+                    decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                msg = decoders[channel.id](message.data)
+                decoded[(channel.id, message.log_time)] = msg
+                apply(layers.setdefault(channel.topic, {}), msg)
+                if channel.topic == "/map/classes":
+                    snapshots.append(voxel_count(layers[channel.topic]))
+            legend_at[t] = legend
+            # The reader that seeks to t: the newest message of each topic at or before t, alone.
+            for topic in scene_topics:
+                back = next(reader.iter_messages(topics=[topic], ending_at=t, reverse=True), None)
+                fresh = {} if back is None else apply({}, decoded[(back[1].id, back[2].log_time)])
+                if fresh != layers.get(topic, {}):
+                    problems.append(
+                        f"at {t}: {topic} after a seek holds {voxel_count(fresh)} voxels, "
+                        f"read from the start {voxel_count(layers.get(topic, {}))}"
+                    )
+                    break
+            classes = layers.get("/map/classes", {})
+            if legend is None or "unclassified" not in legend:
+                if classes:
+                    problems.append(f"at {t}: no legend counting the scene's voxels")
+            elif classes:
+                counted = sum(c["voxels"] for c in legend["classes"]) + legend["unclassified"]["voxels"]
+                if counted != voxel_count(classes):
+                    problems.append(
+                        f"at {t}: the scene holds {voxel_count(classes)} voxels, the legend counts {counted}"
+                    )
+            checked += 1
+            if problems:
+                break
+        first = next(reader.iter_messages(topics=["/map/classes"], ending_at=times[0]), None)
+        opens_on = 0 if first is None else voxel_count(apply({}, decoded[(first[1].id, first[2].log_time)]))
+    if opens_on == 0:
+        problems.append("the file opens on an empty /map/classes")
+    last = layers.get("/map/classes", {})
+    per_class = {}
+    for _, values, colours in last.values():
+        for v, c in zip(values, colours):
+            per_class.setdefault(v, set()).add(c)
+    distinct = {c for cs in per_class.values() for c in cs}
+    if legend is None or not legend.get("classes"):
+        problems.append("no legend with classes")
+    elif any(not c.get("class") for c in legend["classes"]):
+        problems.append(f"legend entries without a name: {legend['classes']}")
+    if len(distinct) < len(per_class):
+        problems.append(f"{len(distinct)} distinct colours for {len(per_class)} classes")
+    if problems:
+        print(f"mcap-seek {path}: FAILED: " + "; ".join(problems))
+        return 1
+    names = ", ".join(c["class"] for c in legend["classes"])
+    print(
+        f"mcap-seek {path}: ok: {len(snapshots)} snapshots of /map/classes ({min(snapshots)} to "
+        f"{max(snapshots)} voxels); at each of {checked} message times a seek (newest message per topic) "
+        f"rebuilds the scene read from the start, whole (= the legend's count); opens on {opens_on} voxels; "
+        f"last scene {voxel_count(last)} voxels in {len(distinct)} distinct class colours for "
+        f"{len(per_class)} classes with voxels, legend names {len(legend['classes'])} ({names})"
+    )
+    return 0
 
 
 def main(path, expect_path):
@@ -35,26 +156,15 @@ def main(path, expect_path):
                 elif channel.topic == "/link/status":
                     status = msg
                 continue
+            if not channel.topic.startswith("/map/"):
+                continue  # the centre frame (/tf)
             if channel.id not in decoders:
                 decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
-            msg = decoders[channel.id](message.data)
-            entities = layers.setdefault(channel.topic, {})
-            for d in msg.deletions:
-                if d.type == 1:
-                    entities.clear()
-                else:
-                    entities.pop(d.id, None)
-            for e in msg.entities:
-                meta = {kv.key: kv.value for kv in e.metadata}
-                keys = meta["voxels"].split(",") if meta.get("voxels") else []
-                values = [kv.value for kv in e.metadata if kv.key != "voxels"][0]
-                values = values.split(",") if values else [""] * len(keys)
-                assert len(keys) == len(e.cubes) == len(values), (channel.topic, e.id)
-                entities[e.id] = (keys, values)
+            apply(layers.setdefault(channel.topic, {}), decoders[channel.id](message.data))
 
     def voxels(topic):
         out = {}
-        for keys, values in layers.get(topic, {}).values():
+        for keys, values, _ in layers.get(topic, {}).values():
             out.update(zip(keys, values))
         return out
 
@@ -92,4 +202,6 @@ def main(path, expect_path):
 
 
 if __name__ == "__main__":
+    if sys.argv[1] == "--seek":
+        sys.exit(seek(sys.argv[2]))
     sys.exit(main(sys.argv[1], sys.argv[2]))

@@ -9,13 +9,15 @@
 //! The options are in `args`, the reading of the user's vocabulary (`--pca`, `--classes`, `--query`) in
 //! `vocabulary`, the byte pump in `receive`.
 
-use super::export::{write_ply, write_pngs};
+use super::export::write_ply;
 use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
-use super::view::{ViewOptions, Viewer, ViewerSummary};
+use super::view::Viewer;
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 
 mod args;
+mod pictures;
 mod receive;
+mod view;
 mod vocabulary;
 use anyhow::{bail, Context, Result};
 pub use args::{BaseStationArgs, MapInfoArgs, MapQueryArgs, OutputArgs, ViewArgs};
@@ -26,6 +28,10 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
+pub use view::{
+    phrase_encoder, print_view_summary, serve_until_interrupted, start_view, view_options,
+    vocabulary, StationViewer,
+};
 pub use vocabulary::Vocab;
 use vocabulary::{check_feature_space, read_vocabulary};
 
@@ -53,13 +59,18 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
     Ok(())
 }
 
-/// Check the output options before anything is read.
+/// Check the output options before anything is read. Their folders are created when they are written
+/// (a folder that is a file, or an output that is a folder, is refused here).
 fn check_outputs(out: &OutputArgs) -> Result<()> {
+    let check = |flag: &str, p: &Path, is_prefix: bool| match p.parent() {
+        Some(f) if !f.as_os_str().is_empty() && !f.exists() => Ok(()),
+        _ => check_output(flag, p, is_prefix),
+    };
     if let Some(p) = &out.png {
-        check_output("--png", p, true)?;
+        check("--png", p, true)?;
     }
     if let Some(p) = &out.ply {
-        check_output("--ply", p, false)?;
+        check("--ply", p, false)?;
     }
     Ok(())
 }
@@ -122,11 +133,16 @@ fn show(
         Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
     let cb = vocab.map_or(&empty, |v| &v.1);
     if let Some(prefix) = &out.png {
-        for f in write_pngs(map, cb, query.map(|q| (q, 0)), prefix, out.scale)? {
+        let query = query.zip(out.query.as_deref());
+        for f in pictures::write(map, vocab, query, prefix, out.scale)? {
             println!("wrote {}", f.display());
         }
     }
     if let Some(p) = &out.ply {
+        if let Some(folder) = p.parent().filter(|f| !f.as_os_str().is_empty()) {
+            std::fs::create_dir_all(folder)
+                .with_context(|| format!("--ply: creating the folder {}", folder.display()))?;
+        }
         write_ply(map, cb, p)?;
         println!("wrote {}", p.display());
     }
@@ -211,23 +227,13 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         duration: args.duration,
         stop,
     };
-    let viewer = if args.view.wanted() {
-        let o = view_options(&args.view, vocab.as_ref(), args.out.query.as_deref());
-        let v = Viewer::start(o)?;
-        if let (Some(a), Some(port)) = (args.view.view, v.port()) {
-            println!(
-                "viewer: serving ws://{}:{port} (Foxglove: Open connection → Foxglove WebSocket)",
-                a.ip()
-            );
-        }
+    let viewer = start_view(&args.view, vocab.as_ref(), args.out.query.as_deref())?;
+    if let Some(v) = &viewer {
         if let Some(m) = base.map() {
             v.push_map(m);
         }
         base.watch();
-        Some(v)
-    } else {
-        None
-    };
+    }
     let chunks = spawn_reader(source);
     let ending = pump_with(
         &mut base,
@@ -335,72 +341,17 @@ pub fn map_query(args: &MapQueryArgs) -> Result<()> {
             args.out.query.as_deref(),
         ))?;
         v.push_map(map);
-        let s = v.finish();
+        let r = v.finish().recording.unwrap_or_default();
         println!(
-            "wrote {}: {} voxels in the scene, {} messages, {} bytes",
+            "wrote {}: {} voxels in the scene, {} messages, {} bytes ({} on disk)",
             path.display(),
-            s.voxels,
-            s.messages,
-            s.bytes
+            r.voxels,
+            r.messages,
+            r.bytes,
+            r.file_bytes
         );
     }
     show(map, &args.out, vocab.as_ref(), query.as_ref(), args.top)
-}
-
-/// The view's options: the vocabulary and query of the output options; clients' phrases are encoded with
-/// the built-in text table and the robots' PCA.
-pub fn view_options(
-    args: &ViewArgs,
-    vocab: Option<&Vocab>,
-    phrase: Option<&str>,
-) -> ViewOptions<DIM, VOCAB_CAP> {
-    let mut o = ViewOptions::new();
-    o.listen = args.view;
-    o.record = args.record.clone();
-    o.rate_hz = args.view_hz;
-    o.backlog = args.view_backlog as usize;
-    if let Some((names, cb, pca)) = vocab {
-        o.vocab = Some((names.clone(), cb.clone()));
-        let pca = pca.clone();
-        let table = crate::sim::vocab::Vocabulary::builtin();
-        o.phrases = Some(Box::new(move |p: &str| {
-            let e = table
-                .embeddings(&[p])
-                .map_err(|e| format!("\"{p}\": {e}"))?;
-            Codebook::from_pca(&pca, &e).map_err(|e| e.to_string())
-        }));
-    }
-    o.phrase = phrase.map(String::from);
-    o
-}
-
-/// The viewer's lines: the scene and the stream, the update latency, refusals.
-pub fn print_view_summary(s: &ViewerSummary) {
-    println!(
-        "viewer: {} voxels in the scene, {} messages, {} bytes",
-        s.voxels, s.messages, s.bytes
-    );
-    let secs = s.elapsed.as_secs_f64().max(1e-9);
-    println!(
-        "viewer: stream {:.1} messages/s, {:.0} bytes/s over {:.1} s",
-        s.messages as f64 / secs,
-        s.bytes as f64 / secs,
-        secs
-    );
-    if !s.latencies.is_empty() {
-        let (median, p95) = median_p95(&s.latencies);
-        println!(
-            "viewer: frame arrival to view update: median {:.1} ms, p95 {:.1} ms ({} chunks, {} updates)",
-            median.as_secs_f64() * 1e3,
-            p95.as_secs_f64() * 1e3,
-            s.latencies.len(),
-            s.updates
-        );
-    }
-    println!("viewer: client messages refused {}", s.refused);
-    for e in &s.phrase_errors {
-        println!("viewer: query refused: {e}");
-    }
 }
 
 /// Median and 95th percentile (nearest rank).

@@ -78,18 +78,12 @@ pub const PALETTE: [(u8, u8, u8); 24] = [
     (132, 60, 57),
 ];
 
-/// Tile classes get natural colours; anything else takes the palette.
+/// Tile classes get natural colours (the live view's table, `export::natural_colour`); anything else takes
+/// the palette.
 pub(crate) fn class_colour(name: &str, i: usize) -> RGBColor {
-    let (r, g, b) = match name {
-        "ground" => (166, 124, 82),
-        "low vegetation" => (170, 220, 100),
-        "medium vegetation" => (80, 170, 60),
-        "high vegetation" => (20, 100, 40),
-        "building" => (200, 60, 60),
-        "noise" => (255, 0, 255),
-        "wall" => (190, 190, 190),
-        "floor" => (230, 210, 170),
-        _ => PALETTE[i % PALETTE.len()],
+    let (r, g, b) = match crate::base_station::export::natural_colour(name) {
+        Some([r, g, b]) => (r, g, b),
+        None => PALETTE[i % PALETTE.len()],
     };
     RGBColor(r, g, b)
 }

@@ -2,16 +2,16 @@
 //! This module is ingest's side ([`Viewer`]: start, push, finish); the thread's loop is `worker`, what the
 //! two share is `shared`.
 
+use super::front::Front;
 use super::guard::{self, QueryParameter, Subscriptions, ViewRequests};
-use super::scene::Layer;
-use super::shared::{Channels, Inbox, Shared, MAX_ARRIVALS};
+use super::recording::Recording;
+use super::shared::{Channels, Inbox, RecordingSummary, Shared, MAX_ARRIVALS};
 use super::worker::{ViewerSummary, Worker};
-use super::{ViewError, ViewOptions, LEGEND_TOPIC, STATUS_TOPIC};
+use super::{ViewError, ViewOptions, Vocabulary};
 use crate::{BaseStation, GlobalMap};
-use foxglove::messages::SceneUpdate;
-use foxglove::{Context, Encode, RawChannel, Schema, WebSocketServerHandle};
+use foxglove::{Context, WebSocketServerHandle};
 use latentbki::key::VoxelKey;
-use std::collections::HashMap;
+use std::net::SocketAddr;
 use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -19,105 +19,73 @@ use std::time::{Duration, Instant};
 /// How long [`Viewer::finish`] waits for the clients' connections to close.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 
-/// The live view and/or recording of one base station.
-pub struct Viewer<const D: usize> {
-    shared: Arc<Shared<D>>,
+/// The live view and/or recording of one base station (`K`: the vocabulary's capacity).
+pub struct Viewer<const D: usize, const K: usize> {
+    shared: Arc<Shared<D, K>>,
     thread: Option<JoinHandle<ViewerSummary>>,
     server: Option<WebSocketServerHandle>,
-    port: Option<u16>,
+    front: Option<Front>,
 }
 
-fn json_channel(ctx: &Arc<Context>, topic: &str, name: &str) -> Arc<RawChannel> {
-    ctx.channel_builder(topic)
-        .message_encoding("json")
-        .schema(Schema::new(
-            name,
-            "jsonschema",
-            br#"{"type":"object"}"#.as_slice(),
-        ))
-        .build_raw()
-        .expect("a JSON channel with a schema is valid")
-}
-
-impl<const D: usize> Viewer<D> {
+impl<const D: usize, const K: usize> Viewer<D, K> {
     /// Start the server and/or the recording, and the view thread.
-    pub fn start<const K: usize>(options: ViewOptions<D, K>) -> Result<Self, ViewError> {
-        let ctx = Context::new();
-        let layers = Layer::ALL
-            .iter()
-            .map(|&l| {
-                let ch = ctx
-                    .channel_builder(l.topic())
-                    .message_encoding(SceneUpdate::get_message_encoding())
-                    .schema(SceneUpdate::get_schema())
-                    .build_raw()
-                    .expect("a protobuf channel with its schema is valid");
-                (l, ch)
-            })
-            .collect();
-        let channels = Channels {
-            _context: ctx.clone(),
-            layers,
-            legend: json_channel(&ctx, LEGEND_TOPIC, "latentbki.Legend"),
-            status: json_channel(&ctx, STATUS_TOPIC, "latentbki.LinkStatus"),
-        };
+    pub fn start(options: ViewOptions<D, K>) -> Result<Self, ViewError> {
         let phrase = options.phrase.clone().unwrap_or_default();
+        let mut inbox = Inbox::new(false);
+        inbox.phrase = Some((phrase.clone(), None));
         let shared = Arc::new(Shared {
-            inbox: Mutex::new(Inbox {
-                config: None,
-                voxels: HashMap::new(),
-                link: None,
-                arrivals: Vec::new(),
-                full: Vec::new(),
-                phrase: Some(phrase.clone()),
-                stop: false,
-            }),
+            inbox: Mutex::new(inbox),
             wake: Condvar::new(),
-            phrase: Mutex::new(phrase),
+            phrase: Mutex::new(phrase.clone()),
         });
-        let mcap =
-            match &options.record {
-                Some(p) => Some(ctx.mcap_writer().create_new_buffered_file(p).map_err(
-                    |error| ViewError::Record {
-                        path: p.display().to_string(),
-                        error,
-                    },
-                )?),
-                None => None,
-            };
-        let (server, port) = match options.listen {
+        let (live, server, front) = match options.listen {
             Some(addr) => {
+                let listen_error = |error: String| ViewError::Listen { addr, error };
+                let ctx = Context::new();
+                let live = Channels::new(&ctx);
                 guard::install_refusal_counter();
                 let requests: Arc<dyn ViewRequests> = shared.clone();
+                // The SDK's server on an ephemeral loopback port, behind the front (see `front`).
                 let server = ctx
                     .websocket_server()
                     .name("latentbki base station")
-                    .bind(addr.ip().to_string(), addr.port())
+                    .bind("127.0.0.1", 0)
                     .message_backlog_size(options.backlog.max(1))
                     .listener(Arc::new(Subscriptions(requests.clone())))
                     .parameter_handler(Arc::new(QueryParameter(requests)))
                     .start_blocking()
-                    .map_err(|error| ViewError::Listen { addr, error })?;
-                let port = server.port();
-                (Some(server), Some(port))
+                    .map_err(|e| listen_error(e.to_string()))?;
+                let backend = SocketAddr::from(([127, 0, 0, 1], server.port()));
+                let front = Front::start(addr, backend).map_err(|e| listen_error(e.to_string()))?;
+                (Some(live), Some(server), Some(front))
             }
-            None => (None, None),
+            None => (None, None, None),
+        };
+        // After the server: a server that cannot listen leaves no empty recording behind.
+        let recording = match &options.record {
+            Some(p) => Some(Recording::create(p)?),
+            None => None,
         };
         let worker = Worker::<D, K> {
             shared: shared.clone(),
-            channels,
+            live,
+            recording,
             interval: Duration::from_secs_f64(1.0 / options.rate_hz.clamp(0.01, 1000.0)),
-            vocab: options.vocab,
-            phrases: options.phrases,
+            vocabulary: None,
             map: None,
             scene: None,
             query: None,
+            phrase: (phrase, None),
             fixed_at: 0,
             summary: ViewerSummary::default(),
             last_status: None,
-            mcap,
+            last_legend: None,
+            last_frame: None,
             refused_at_start: guard::refused(),
         };
+        if let Some(v) = options.vocabulary {
+            shared.inbox().vocabulary = Some(v);
+        }
         let thread = std::thread::Builder::new()
             .name("view".into())
             .spawn(move || worker.run())
@@ -126,13 +94,40 @@ impl<const D: usize> Viewer<D> {
             shared,
             thread: Some(thread),
             server,
-            port,
+            front,
         })
+    }
+
+    /// Decode the map with this vocabulary from now on (a robot's feature space became known): every
+    /// voxel is decoded again and every layer re-sent whole, with the legend.
+    pub fn set_vocabulary(&self, vocabulary: Vocabulary<D, K>) {
+        self.shared.inbox().vocabulary = Some(vocabulary);
+        self.shared.wake.notify_one();
+    }
+
+    /// Make `phrase` the query in force (as if a client had set it; clients see the new value).
+    pub fn set_phrase(&self, phrase: &str) {
+        *self
+            .shared
+            .phrase
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = phrase.to_string();
+        self.shared.inbox().phrase = Some((phrase.to_string(), None));
+        self.shared.wake.notify_one();
+    }
+
+    /// Write the recording's last snapshot and close its file (the live view goes on); what it holds.
+    /// None without a recording (or if it was closed already).
+    pub fn end_recording(&self) -> Option<RecordingSummary> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        self.shared.inbox().end_recording = Some(tx);
+        self.shared.wake.notify_one();
+        rx.recv().ok().flatten()
     }
 
     /// The port the server listens on (None without a server).
     pub fn port(&self) -> Option<u16> {
-        self.port
+        self.front.as_ref().map(|f| f.addr().port())
     }
 
     /// Ingest's side: the voxels `changed` by bytes that arrived at `arrived` (copied; never waits on a
@@ -200,11 +195,14 @@ impl<const D: usize> Viewer<D> {
                 );
             }
         }
+        if let Some(f) = self.front.take() {
+            f.stop();
+        }
         summary
     }
 }
 
-impl<const D: usize> Drop for Viewer<D> {
+impl<const D: usize, const K: usize> Drop for Viewer<D, K> {
     fn drop(&mut self) {
         self.shared.inbox().stop = true;
         self.shared.wake.notify_one();

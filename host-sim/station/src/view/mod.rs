@@ -13,9 +13,18 @@
 //!
 //! **Topics** (frame `map`): [`Layer::Classes`] `/map/classes`, [`Layer::Heat`] `/map/heat`,
 //! [`Layer::Uncertainty`] `/map/uncertainty`, [`Layer::Robots`] `/map/robots` (`foxglove.SceneUpdate`,
-//! protobuf); [`LEGEND_TOPIC`] (class → colour, the phrase in force) and [`STATUS_TOPIC`] (the link's
-//! counters and the viewer's own), JSON. The query phrase is the Foxglove parameter
+//! protobuf); [`LEGEND_TOPIC`] (each class's name, colour and voxels; the phrase in force) and
+//! [`STATUS_TOPIC`] (the link's counters and the viewer's own), JSON; [`FRAME_TOPIC`], the map's centre as a
+//! frame a 3D panel follows. Classes take their natural colours where they have one (ground brown,
+//! vegetation green, …: `export::class_colour`, the demo's figures' table), else a palette by index. The
+//! map decodes once a [`Vocabulary`] is known — at the start (`--pca`) or later
+//! ([`Viewer::set_vocabulary`]: the demo learns its robot's feature space after the view has started);
+//! every voxel is then decoded again and re-sent. The query phrase is the Foxglove parameter
 //! [`guard::QUERY_PARAMETER`]; setting it re-scores every voxel and re-sends the heat layer whole.
+//!
+//! **Clients**: the server is Foxglove's SDK behind a [`front`] door that also accepts the protocol's
+//! classic name `foxglove.websocket.v1`, which the SDK alone refuses (older Foxglove and Lichtblick).
+//! **Recording**: whole scenes at intervals, so that a reader that seeks sees the map ([`recording`]).
 //!
 //! **Flow.** Ingest never waits on the view: it copies the voxels a frame changed into an inbox (a map
 //! keyed by voxel, so a burst coalesces and the inbox never outgrows the map) under a lock held only for
@@ -25,8 +34,10 @@
 //! map). Each client has its own bounded queue in the SDK (`backlog` messages; the oldest are dropped
 //! when a client does not read), so a stalled client costs bounded memory and nothing else.
 
+pub mod front;
 pub mod guard;
 mod live;
+mod recording;
 pub mod scene;
 mod shared;
 mod worker;
@@ -35,22 +46,39 @@ mod worker;
 pub use foxglove;
 pub use live::Viewer;
 pub use scene::{BlockKey, Layer, Scene, VoxelRow};
+pub use shared::RecordingSummary;
 pub use worker::ViewerSummary;
 
 use latentbki::decode::Codebook;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
-/// The legend topic: JSON `{"classes": [{"index", "name", "rgb"}], "query": phrase, ...}`.
+/// The legend topic: JSON `{"classes": [{"index", "name", "rgb", "hex", "voxels"}], "query": phrase, ...}`.
 pub const LEGEND_TOPIC: &str = "/map/legend";
 /// The link's counters and the viewer's own, JSON.
 pub const STATUS_TOPIC: &str = "/link/status";
+/// `foxglove.FrameTransforms`: where [`CENTRE_FRAME`] is in the map's frame.
+pub const FRAME_TOPIC: &str = "/tf";
+/// A frame at the centre of the map's extent (5th to 95th percentile of its voxels on each axis), so that a
+/// 3D panel that follows it (the committed layout does) looks at the map, wherever it lies.
+pub const CENTRE_FRAME: &str = "map_centre";
 /// Where the live view listens unless told otherwise (loopback only).
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 
 /// Turns a phrase into a one-entry query codebook (the base station's text table and the robots' PCA).
 pub type PhraseEncoder<const D: usize, const K: usize> =
     Box<dyn Fn(&str) -> Result<Codebook<D, K>, String> + Send>;
+
+/// What decodes the map: the class names and their codebook (the robots' feature space), and the encoder
+/// of the phrases clients type.
+pub struct Vocabulary<const D: usize, const K: usize> {
+    /// Class names, in codebook order.
+    pub names: Vec<String>,
+    /// The classes' text embeddings in the robots' feature space.
+    pub codebook: Codebook<D, K>,
+    /// Encodes the phrases clients set (None: the heat layer stays empty).
+    pub phrases: Option<PhraseEncoder<D, K>>,
+}
 
 /// How the view runs.
 pub struct ViewOptions<const D: usize, const K: usize> {
@@ -62,10 +90,8 @@ pub struct ViewOptions<const D: usize, const K: usize> {
     pub rate_hz: f64,
     /// Messages queued per client before the oldest are dropped.
     pub backlog: usize,
-    /// Class names and their codebook (None: voxels are grey, no class).
-    pub vocab: Option<(Vec<String>, Codebook<D, K>)>,
-    /// Encodes the phrases clients set (None: the heat layer stays empty).
-    pub phrases: Option<PhraseEncoder<D, K>>,
+    /// What decodes the map (None: voxels are grey, no class, until [`Viewer::set_vocabulary`]).
+    pub vocabulary: Option<Vocabulary<D, K>>,
     /// The phrase in force at the start.
     pub phrase: Option<String>,
 }
@@ -78,8 +104,7 @@ impl<const D: usize, const K: usize> ViewOptions<D, K> {
             record: None,
             rate_hz: 10.0,
             backlog: 64,
-            vocab: None,
-            phrases: None,
+            vocabulary: None,
             phrase: None,
         }
     }
@@ -100,7 +125,7 @@ pub enum ViewError {
         /// Where.
         addr: SocketAddr,
         /// Why.
-        error: foxglove::FoxgloveError,
+        error: String,
     },
     /// The recording could not be written.
     #[error("cannot write the recording {path}: {error}")]

@@ -123,20 +123,22 @@ struct Range {
 }
 
 impl Range {
+    /// From the 2nd to the 98th percentile of the finite values (a few outliers must not squeeze every
+    /// other voxel into one colour); [0, 1] without any.
     fn over(values: impl Iterator<Item = f32>) -> Self {
-        let (lo, hi) = values
-            .filter(|v| v.is_finite())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| {
-                (a.min(v), b.max(v))
-            });
-        if lo.is_finite() {
-            Self { lo, hi }
-        } else {
-            Self { lo: 0.0, hi: 1.0 }
+        let mut v: Vec<f32> = values.filter(|v| v.is_finite()).collect();
+        if v.is_empty() {
+            return Self { lo: 0.0, hi: 1.0 };
+        }
+        v.sort_unstable_by(f32::total_cmp);
+        let at = |q: f32| v[((q * (v.len() - 1) as f32).round() as usize).min(v.len() - 1)];
+        Self {
+            lo: at(0.02),
+            hi: at(0.98),
         }
     }
     fn t(&self, v: f32) -> f32 {
-        (v - self.lo) / (self.hi - self.lo).max(1e-6)
+        ((v - self.lo) / (self.hi - self.lo).max(1e-6)).clamp(0.0, 1.0)
     }
 }
 
@@ -150,6 +152,8 @@ pub struct Scene<const D: usize, const K: usize> {
     blocks: BTreeMap<BlockKey, BTreeSet<VoxelKey>>,
     heat_range: Range,
     log_e_range: Option<Range>,
+    /// Each class's colour (by index; a class past its end takes the index palette).
+    palette: Vec<[u8; 3]>,
     /// Per layer, each block's entity encoded as a one-entity `SceneUpdate` (see the module's doc).
     encoded: [BTreeMap<BlockKey, Vec<u8>>; 4],
 }
@@ -163,6 +167,7 @@ impl<const D: usize, const K: usize> Scene<D, K> {
             blocks: BTreeMap::new(),
             heat_range: Range { lo: 0.0, hi: 1.0 },
             log_e_range: None,
+            palette: Vec::new(),
             encoded: Default::default(),
         }
     }
@@ -182,6 +187,47 @@ impl<const D: usize, const K: usize> Scene<D, K> {
     /// Blocks holding at least one voxel.
     pub fn blocks(&self) -> impl Iterator<Item = &BlockKey> {
         self.blocks.keys()
+    }
+
+    /// Colour the classes so (index order); the classes layer is built again.
+    pub fn set_palette(&mut self, colours: Vec<[u8; 3]>) {
+        self.palette = colours;
+        self.encoded[Layer::Classes as usize].clear();
+    }
+
+    /// A class's colour.
+    pub fn class_colour(&self, class: usize) -> [u8; 3] {
+        self.palette
+            .get(class)
+            .copied()
+            .unwrap_or_else(|| label_colour(class))
+    }
+
+    /// Voxels per decoded class (`classes` entries; a voxel without a class is not counted).
+    pub fn class_counts(&self, classes: usize) -> Vec<usize> {
+        let mut counts = vec![0; classes];
+        for c in self.rows.values().filter_map(|r| r.class) {
+            if let Some(n) = counts.get_mut(c.0) {
+                *n += 1;
+            }
+        }
+        counts
+    }
+
+    /// The centre of the scene's extent, metres: on each axis the middle of the 5th and 95th percentiles
+    /// of the voxels' centres (a stray voxel far away does not move it). None for an empty scene.
+    pub fn centre(&self) -> Option<[f32; 3]> {
+        if self.rows.is_empty() {
+            return None;
+        }
+        let mut out = [0.0; 3];
+        for (axis, o) in out.iter_mut().enumerate() {
+            let mut v: Vec<i32> = self.rows.keys().map(|k| [k.x, k.y, k.z][axis]).collect();
+            v.sort_unstable();
+            let at = |q: f32| v[((q * (v.len() - 1) as f32).round() as usize).min(v.len() - 1)];
+            *o = (at(0.05) + at(0.95) + 1) as f32 * 0.5 * self.voxel_size;
+        }
+        Some(out)
     }
 
     /// Observed voxels whose posterior a change of `changed` alters: each changed voxel and every
@@ -287,7 +333,7 @@ impl<const D: usize, const K: usize> Scene<D, K> {
 
     fn colour(&self, layer: Layer, row: &VoxelRow<D>) -> [u8; 3] {
         match layer {
-            Layer::Classes => row.class.map_or(UNDEFINED, |(c, _)| label_colour(c)),
+            Layer::Classes => row.class.map_or(UNDEFINED, |(c, _)| self.class_colour(c)),
             Layer::Heat => row.heat.map_or(UNDEFINED, |s| ramp(self.heat_range.t(s))),
             Layer::Uncertainty => match (row.e_opt.filter(|e| *e > 0.0), self.log_e_range) {
                 (Some(e), Some(r)) => ramp(r.t(e.ln())),

@@ -132,3 +132,37 @@ fn joined_bytes_are_the_messages_and_follow_every_change() {
     let heat = SceneUpdate::decode(&scene.full_bytes(Layer::Heat, t2)[..]).unwrap();
     assert_eq!(heat, scene.full_message(Layer::Heat, t2));
 }
+
+#[test]
+fn the_centre_ignores_a_stray_voxel_and_classes_take_their_palette() {
+    let mut m = map();
+    for x in 0..40 {
+        observe(&mut m, 1, VoxelKey::new(x, 10, 0), 0.9);
+    }
+    let stray = VoxelKey::new(4000, 10, 0);
+    observe(&mut m, 1, stray, 0.9);
+    let mut scene = Scene::<D, 4>::new(m.map_config().voxel_size());
+    assert_eq!(scene.centre(), None);
+    scene.update(&m, &m.sorted_keys(), Some(&vocab()), None);
+    let v = m.map_config().voxel_size();
+    let c = scene.centre().unwrap();
+    // x: 5th to 95th percentile of 0..=39 and the stray, i.e. keys 2 and 38 (+1 for the far side).
+    assert!((c[0] - 20.5 * v).abs() < 0.6 * v, "{c:?}");
+    assert!((c[1] - 10.5 * v).abs() < 1e-4, "{c:?}");
+    scene.set_palette(vec![[1, 2, 3], [4, 5, 6]]);
+    assert_eq!(scene.class_colour(1), [4, 5, 6]);
+    assert_eq!(scene.class_colour(7), crate::export::label_colour(7));
+    let e = scene
+        .entity(
+            Layer::Classes,
+            BlockKey::of(VoxelKey::new(0, 10, 0)),
+            Timestamp::new(1, 0),
+        )
+        .unwrap();
+    let c = e.cubes[0].color.as_ref().unwrap();
+    assert_eq!(
+        [c.r, c.g, c.b].map(|x| (x * 255.0).round() as u8),
+        [1, 2, 3]
+    );
+    assert_eq!(scene.class_counts(2), vec![41, 0]);
+}

@@ -1,30 +1,35 @@
 //! The view thread's loop ([`Worker`]): wait for ingest's inbox, fold it into the scene at most once per
-//! interval, and send what changed (scene layers, legend, link status) to the WebSocket server and the
-//! recording; a new subscriber gets the whole scene. Apart from [`super::live`], the handle ingest holds,
-//! because this side owns the scene and never blocks ingest.
+//! interval, and send what changed (scene layers, legend, link status, the map's centre frame) to the
+//! WebSocket server, and whole scenes to the recording ([`super::recording`]); a new subscriber gets the
+//! whole scene. Apart from [`super::live`], the handle ingest holds, because this side owns the scene and
+//! never blocks ingest.
 
-use super::guard::{self, ViewRequests};
+use super::guard;
+use super::recording::Recording;
 use super::scene::{Layer, Scene};
-use super::shared::{Channels, Inbox, Shared, MAX_SAMPLES};
-use super::{LEGEND_TOPIC, STATUS_TOPIC};
-use crate::export::label_colour;
+use super::shared::{Channels, Inbox, RecordingSummary, Shared, MAX_SAMPLES};
+use super::{Vocabulary, CENTRE_FRAME, FRAME_TOPIC, LEGEND_TOPIC, STATUS_TOPIC};
+use crate::export::class_colour;
 use crate::{GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
-use foxglove::messages::Timestamp;
-use foxglove::{McapWriterHandle, RawChannel, SinkId};
+use foxglove::messages::{FrameTransform, FrameTransforms, Quaternion, Timestamp, Vector3};
+use foxglove::{RawChannel, SinkId};
 use latentbki::wire::SessionConfig;
 use latentbki::{decode::Codebook, key::VoxelKey};
 use std::collections::{BTreeMap, HashMap};
-use std::fs::File;
-use std::io::BufWriter;
 use std::sync::{Arc, PoisonError};
 use std::time::{Duration, Instant};
+
+/// The centre frame is recomputed at most this often (three sorts of the scene's coordinates).
+const CENTRE_EVERY: Duration = Duration::from_secs(1);
+/// ... and sent again when it moved at least this far (metres).
+const CENTRE_MOVE: f32 = 0.5;
 
 /// What the view sent, for the summary line and the figures.
 #[derive(Clone, Debug, Default)]
 pub struct ViewerSummary {
     /// Voxels in the last scene.
     pub voxels: usize,
-    /// Messages published (broadcast, to one late joiner, or to the recording).
+    /// Messages published to the live view (broadcast, or to one late joiner).
     pub messages: u64,
     /// Their bytes (encoded payloads).
     pub bytes: u64,
@@ -32,29 +37,37 @@ pub struct ViewerSummary {
     pub updates: u64,
     /// For each chunk of frames: its arrival at ingest to the end of the view update that showed it.
     pub latencies: Vec<Duration>,
+    /// For each phrase a client set: from its arrival to the heat layer re-sent whole.
+    pub query_latencies: Vec<Duration>,
     /// Client messages the server refused (garbage, oversized, unknown channels).
     pub refused: u64,
     /// Phrases that could not be encoded.
     pub phrase_errors: Vec<String>,
     /// From the view's start to its finish.
     pub elapsed: Duration,
+    /// The recording, if there was one (closed).
+    pub recording: Option<RecordingSummary>,
 }
 
 pub(super) struct Worker<const D: usize, const K: usize> {
-    pub(super) shared: Arc<Shared<D>>,
-    pub(super) channels: Channels,
+    pub(super) shared: Arc<Shared<D, K>>,
+    /// The live server's channels (None without a server).
+    pub(super) live: Option<Channels>,
+    pub(super) recording: Option<Recording>,
     pub(super) interval: Duration,
-    pub(super) vocab: Option<(Vec<String>, Codebook<D, K>)>,
-    pub(super) phrases: Option<super::PhraseEncoder<D, K>>,
+    pub(super) vocabulary: Option<Vocabulary<D, K>>,
     pub(super) map: Option<GlobalMap<D>>,
     pub(super) scene: Option<Scene<D, K>>,
     pub(super) query: Option<Codebook<D, K>>,
+    /// The phrase in force, and why it could not be encoded (if so).
+    pub(super) phrase: (String, Option<String>),
     /// Voxels in the scene when its colour ranges were last fixed.
     pub(super) fixed_at: usize,
     pub(super) summary: ViewerSummary,
-    /// The last link status sent (a new subscriber gets it at once).
+    /// The last link status, legend and centre frame sent (a new subscriber gets them at once).
     pub(super) last_status: Option<Vec<u8>>,
-    pub(super) mcap: Option<McapWriterHandle<BufWriter<File>>>,
+    pub(super) last_legend: Option<Vec<u8>>,
+    pub(super) last_frame: Option<(Instant, [f32; 3], Vec<u8>)>,
     pub(super) refused_at_start: u64,
 }
 
@@ -71,31 +84,44 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             let batch = {
                 let mut inbox = self.shared.inbox();
                 while inbox.is_empty() && !inbox.stop {
-                    inbox = self
-                        .shared
-                        .wake
-                        .wait(inbox)
-                        .unwrap_or_else(PoisonError::into_inner);
+                    // A snapshot waiting for its interval wakes the thread when it is due.
+                    match self.recording.as_ref().and_then(Recording::due) {
+                        Some(due) if self.scene.as_ref().is_some_and(|s| !s.is_empty()) => {
+                            if due.is_zero() {
+                                break;
+                            }
+                            inbox = self
+                                .shared
+                                .wake
+                                .wait_timeout(inbox, due)
+                                .unwrap_or_else(PoisonError::into_inner)
+                                .0;
+                        }
+                        _ => {
+                            inbox = self
+                                .shared
+                                .wake
+                                .wait(inbox)
+                                .unwrap_or_else(PoisonError::into_inner);
+                        }
+                    }
                 }
                 let stop = inbox.stop;
-                std::mem::replace(
-                    &mut *inbox,
-                    Inbox {
-                        config: None,
-                        voxels: HashMap::new(),
-                        link: None,
-                        arrivals: Vec::new(),
-                        full: Vec::new(),
-                        phrase: None,
-                        stop,
-                    },
-                )
+                std::mem::replace(&mut *inbox, Inbox::new(stop))
             };
             last = Instant::now();
-            self.update(batch.config, batch.voxels, batch.phrase);
+            let renamed = batch.vocabulary.is_some();
+            if let Some(v) = batch.vocabulary {
+                self.set_vocabulary(v);
+            }
+            let phrase = batch.phrase.or_else(|| {
+                // A new vocabulary brings a new phrase encoder: encode the phrase in force again.
+                renamed.then(|| (self.phrase.0.clone(), None))
+            });
+            self.update(batch.config, batch.voxels, phrase, renamed);
             if let Some((stats, sessions)) = batch.link {
                 let status = self.status(&stats, &sessions);
-                self.send(&self.channels.status.clone(), &status, None);
+                self.send_live(|c| &c.status, &status, None);
                 self.last_status = Some(status);
             }
             for (sink, topic) in batch.full {
@@ -107,6 +133,10 @@ impl<const D: usize, const K: usize> Worker<D, K> {
                     self.summary.latencies.push(done.duration_since(a));
                 }
             }
+            self.snapshot(false);
+            if let Some(reply) = batch.end_recording {
+                let _ = reply.send(self.close_recording());
+            }
             if batch.stop {
                 break;
             }
@@ -114,109 +144,241 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         self.summary.voxels = self.scene.as_ref().map_or(0, Scene::len);
         self.summary.elapsed = started.elapsed();
         self.summary.refused = guard::refused() - self.refused_at_start;
-        if let Some(m) = self.mcap.take() {
-            let _ = m.close();
+        if let Some(r) = self.close_recording() {
+            self.summary.recording = Some(r);
         }
         self.summary
     }
 
-    fn send(&mut self, ch: &Arc<RawChannel>, bytes: &[u8], sink: Option<SinkId>) {
-        ch.log_to_sink(bytes, sink);
-        self.summary.messages += 1;
-        self.summary.bytes += bytes.len() as u64;
+    /// Publish on a live channel (to every client, or to one).
+    fn send_live(
+        &mut self,
+        which: impl Fn(&Channels) -> &Arc<RawChannel>,
+        bytes: &[u8],
+        sink: Option<SinkId>,
+    ) {
+        if let Some(ch) = &self.live {
+            which(ch).log_to_sink(bytes, sink);
+            self.summary.messages += 1;
+            self.summary.bytes += bytes.len() as u64;
+        }
     }
 
-    fn send_scene(&mut self, layer: Layer, buf: &[u8], sink: Option<SinkId>) {
-        let ch = self.channels.layers[layer as usize].1.clone();
-        self.send(&ch, buf, sink);
+    /// The recording's snapshot, if one is due (or `now`).
+    fn snapshot(&mut self, now: bool) {
+        if let Some(r) = &mut self.recording {
+            r.snapshot(
+                self.scene.as_mut(),
+                self.last_frame.as_ref().map(|f| f.2.as_slice()),
+                self.last_status.as_deref(),
+                now,
+            );
+        }
+    }
+
+    /// The last snapshot, and the file closed.
+    fn close_recording(&mut self) -> Option<RecordingSummary> {
+        self.snapshot(true);
+        let r = self.recording.take()?.close();
+        self.summary.recording = Some(r.clone());
+        Some(r)
+    }
+
+    fn set_vocabulary(&mut self, v: Vocabulary<D, K>) {
+        let colours = v
+            .names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| class_colour(n, i))
+            .collect();
+        if let Some(s) = &mut self.scene {
+            s.set_palette(colours);
+        }
+        self.vocabulary = Some(v);
     }
 
     fn update(
         &mut self,
         config: Option<SessionConfig>,
         voxels: HashMap<VoxelKey, GlobalVoxel<D>>,
-        phrase: Option<String>,
+        phrase: Option<(String, Option<Instant>)>,
+        decode_all: bool,
     ) {
-        let mut full = false;
+        let mut full = decode_all;
         if let (None, Some(c)) = (&self.map, config) {
             if let Ok(m) = GlobalMap::new(c) {
-                self.scene = Some(Scene::new(m.map_config().voxel_size()));
+                let mut scene = Scene::new(m.map_config().voxel_size());
+                if let Some(v) = &self.vocabulary {
+                    scene.set_palette(
+                        v.names
+                            .iter()
+                            .enumerate()
+                            .map(|(i, n)| class_colour(n, i))
+                            .collect(),
+                    );
+                }
+                self.scene = Some(scene);
                 self.map = Some(m);
                 full = true;
             }
         }
         let mut heat_full = false;
-        if let Some(p) = phrase {
-            self.query = match (&self.phrases, p.is_empty()) {
-                (_, true) | (None, _) => None,
-                (Some(enc), false) => match enc(&p) {
-                    Ok(q) => Some(q),
-                    Err(e) => {
-                        self.summary.phrase_errors.push(e);
-                        None
-                    }
-                },
-            };
-            if let Some(s) = &mut self.scene {
-                s.set_query(self.query.as_ref());
-            }
+        let mut asked_at = None;
+        if let Some((p, at)) = phrase {
+            self.set_phrase(p);
+            asked_at = at;
             heat_full = true;
-            let legend = self.legend(&p);
-            self.send(&self.channels.legend.clone(), &legend, None);
         }
-        let (Some(map), Some(scene)) = (&mut self.map, &mut self.scene) else {
-            return;
-        };
-        let changed: Vec<VoxelKey> = voxels.keys().copied().collect();
-        for (k, v) in voxels {
-            map.insert_raw(k, v);
-        }
-        let affected = Scene::<D, K>::affected(map, changed);
-        let dirty = scene.update(
-            map,
-            &affected,
-            self.vocab.as_ref().map(|v| &v.1),
-            self.query.as_ref(),
-        );
-        // Colour ranges are fixed at a full scene and again each time the map has doubled since.
-        if full || scene.len() >= 2 * self.fixed_at.max(32) {
-            scene.fix_ranges();
-            self.fixed_at = scene.len();
-            full = true;
-        }
-        let time = Timestamp::now();
-        self.summary.updates += 1;
-        for layer in Layer::ALL {
-            let scene = self.scene.as_mut().expect("set above");
-            let buf = if full || (heat_full && layer == Layer::Heat) {
-                scene.full_bytes(layer, time)
-            } else if !dirty.is_empty() {
-                scene.update_bytes(layer, &dirty, time)
+        if let (Some(map), Some(scene)) = (&mut self.map, &mut self.scene) {
+            let changed: Vec<VoxelKey> = voxels.keys().copied().collect();
+            for (k, v) in voxels {
+                map.insert_raw(k, v);
+            }
+            let keys = if decode_all {
+                map.sorted_keys()
             } else {
-                continue;
+                Scene::<D, K>::affected(map, changed)
             };
-            self.send_scene(layer, &buf, None);
+            let dirty = scene.update(
+                map,
+                &keys,
+                self.vocabulary.as_ref().map(|v| &v.codebook),
+                self.query.as_ref(),
+            );
+            // Colour ranges are fixed at a full scene and again each time the map has doubled since.
+            if full || scene.len() >= 2 * self.fixed_at.max(32) {
+                scene.fix_ranges();
+                self.fixed_at = scene.len();
+                full = true;
+            }
+            let time = Timestamp::now();
+            self.summary.updates += 1;
+            for layer in Layer::ALL {
+                let scene = self.scene.as_mut().expect("set above");
+                let whole = full || (heat_full && layer == Layer::Heat);
+                if !whole && dirty.is_empty() {
+                    continue;
+                }
+                if let Some(r) = &mut self.recording {
+                    r.mark(layer);
+                }
+                if self.live.is_none() {
+                    continue;
+                }
+                let buf = if whole {
+                    scene.full_bytes(layer, time)
+                } else {
+                    scene.update_bytes(layer, &dirty, time)
+                };
+                self.send_live(|c| c.layer(layer), &buf, None);
+            }
+            self.centre(full);
+        }
+        if let Some(at) = asked_at {
+            if self.summary.query_latencies.len() < MAX_SAMPLES {
+                self.summary.query_latencies.push(at.elapsed());
+            }
+        }
+        let legend = self.legend();
+        if self.last_legend.as_ref() != Some(&legend) {
+            self.send_live(|c| &c.legend, &legend, None);
+            if let Some(r) = &mut self.recording {
+                r.legend(&legend);
+            }
+            self.last_legend = Some(legend);
         }
     }
 
-    fn full_to(&mut self, sink: SinkId, topic: &str) {
-        if topic == LEGEND_TOPIC {
-            let legend = self.legend(&self.shared.phrase());
-            self.send(&self.channels.legend.clone(), &legend, Some(sink));
+    /// Encode a new phrase and score every voxel with it.
+    fn set_phrase(&mut self, p: String) {
+        let encoder = self.vocabulary.as_ref().and_then(|v| v.phrases.as_ref());
+        let (query, error) = match (encoder, p.is_empty()) {
+            (_, true) => (None, None),
+            (None, false) => (
+                None,
+                Some(format!(
+                    "\"{p}\": the view has no feature space to encode phrases with yet"
+                )),
+            ),
+            (Some(enc), false) => match enc(&p) {
+                Ok(q) => (Some(q), None),
+                Err(e) => (None, Some(e)),
+            },
+        };
+        if let Some(e) = &error {
+            self.summary.phrase_errors.push(e.clone());
+        }
+        self.query = query;
+        self.phrase = (p, error);
+        if let Some(s) = &mut self.scene {
+            s.set_query(self.query.as_ref());
+        }
+    }
+
+    /// Send the centre frame when it moved (checked at most every [`CENTRE_EVERY`], or at a full scene).
+    fn centre(&mut self, now: bool) {
+        if !now
+            && self
+                .last_frame
+                .as_ref()
+                .is_some_and(|f| f.0.elapsed() < CENTRE_EVERY)
+        {
             return;
         }
-        if topic == STATUS_TOPIC {
-            if let Some(status) = self.last_status.clone() {
-                self.send(&self.channels.status.clone(), &status, Some(sink));
+        let Some(c) = self.scene.as_ref().and_then(Scene::centre) else {
+            return;
+        };
+        let moved = self.last_frame.as_ref().is_none_or(|f| {
+            let d: f32 = (0..3).map(|i| (f.1[i] - c[i]).powi(2)).sum();
+            d.sqrt() >= CENTRE_MOVE
+        });
+        if !moved {
+            if let Some(f) = &mut self.last_frame {
+                f.0 = Instant::now();
             }
             return;
         }
-        let Some(&(layer, _)) = self
-            .channels
-            .layers
-            .iter()
-            .find(|(l, _)| l.topic() == topic)
-        else {
+        let msg = FrameTransforms {
+            transforms: vec![FrameTransform {
+                timestamp: Some(Timestamp::now()),
+                parent_frame_id: super::scene::FRAME.into(),
+                child_frame_id: CENTRE_FRAME.into(),
+                translation: Some(Vector3 {
+                    x: f64::from(c[0]),
+                    y: f64::from(c[1]),
+                    z: f64::from(c[2]),
+                }),
+                rotation: Some(Quaternion {
+                    x: 0.0,
+                    y: 0.0,
+                    z: 0.0,
+                    w: 1.0,
+                }),
+            }],
+        };
+        let mut bytes = Vec::new();
+        foxglove::Encode::encode(&msg, &mut bytes).expect("a Vec grows");
+        self.send_live(|ch| &ch.frame, &bytes, None);
+        self.last_frame = Some((Instant::now(), c, bytes));
+    }
+
+    fn full_to(&mut self, sink: SinkId, topic: &str) {
+        let last = match topic {
+            LEGEND_TOPIC => Some(self.last_legend.clone().unwrap_or_else(|| self.legend())),
+            STATUS_TOPIC => self.last_status.clone(),
+            FRAME_TOPIC => self.last_frame.as_ref().map(|f| f.2.clone()),
+            _ => None,
+        };
+        if let Some(bytes) = last {
+            let which: fn(&Channels) -> &Arc<RawChannel> = match topic {
+                LEGEND_TOPIC => |c| &c.legend,
+                STATUS_TOPIC => |c| &c.status,
+                _ => |c| &c.frame,
+            };
+            self.send_live(which, &bytes, Some(sink));
+            return;
+        }
+        let Some(layer) = Layer::ALL.into_iter().find(|l| l.topic() == topic) else {
             return;
         };
         let time = Timestamp::now();
@@ -224,25 +386,42 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             Some(s) => s.full_bytes(layer, time),
             None => Scene::<D, K>::new(1.0).full_bytes(layer, time),
         };
-        self.send_scene(layer, &buf, Some(sink));
+        self.send_live(|c| c.layer(layer), &buf, Some(sink));
     }
 
-    fn legend(&self, phrase: &str) -> Vec<u8> {
-        let classes: Vec<_> = self.vocab.as_ref().map_or(Vec::new(), |(names, _)| {
-            names
+    /// The legend: each class's name, colour and voxels; the phrase in force.
+    fn legend(&self) -> Vec<u8> {
+        let counts = match (&self.scene, &self.vocabulary) {
+            (Some(s), Some(v)) => s.class_counts(v.names.len()),
+            (_, Some(v)) => vec![0; v.names.len()],
+            _ => Vec::new(),
+        };
+        let hex = |[r, g, b]: [u8; 3]| format!("#{r:02x}{g:02x}{b:02x}");
+        let classes: Vec<_> = self.vocabulary.as_ref().map_or(Vec::new(), |v| {
+            v.names
                 .iter()
                 .enumerate()
-                .map(|(i, n)| serde_json::json!({"index": i, "name": n, "rgb": label_colour(i)}))
+                .map(|(i, n)| {
+                    let rgb = self
+                        .scene
+                        .as_ref()
+                        .map_or_else(|| class_colour(n, i), |s| s.class_colour(i));
+                    serde_json::json!({
+                        "class": n, "colour": hex(rgb), "voxels": counts[i], "index": i, "rgb": rgb,
+                    })
+                })
                 .collect()
         });
+        let classified: usize = counts.iter().sum();
+        let all = self.scene.as_ref().map_or(0, Scene::len);
         serde_json::to_vec(&serde_json::json!({
             "classes": classes,
-            "unclassified_rgb": [128, 128, 128],
-            "query": phrase,
-            "query_error": self.summary.phrase_errors.last(),
+            "unclassified": {"colour": "#808080", "voxels": all - classified.min(all)},
+            "query": self.phrase.0,
+            "query_error": self.phrase.1,
             "robots": "palette by robot id (the class palette); white: several robots",
-            "heat": "viridis over the cosine scores when the phrase was set; exact score in metadata",
-            "uncertainty": "viridis over log E-optimality (authors' t_var, lambda > 2); grey: undefined",
+            "heat": "viridis over the cosine scores (2nd to 98th percentile) when the phrase was set; exact score in metadata",
+            "uncertainty": "viridis over log E-optimality (authors' t_var, lambda > 2; 2nd to 98th percentile); grey: undefined",
         }))
         .expect("JSON")
     }
