@@ -9,7 +9,8 @@
 #   --panic-never   the link-time no-panic proof: the `panic-never` build links, runs, and streams the same
 #                   UART bytes as the target's reporting build
 #   --table         rows of measure.sh's table: flash, whole-run stack, instructions/point at f = 3 on the
-#                   depth frame (per feature type)
+#                   depth frame (per feature type) and, with int8 features, on the 8×8 ToF and the scanning
+#                   LiDAR; the accuracy of the firmware's stream at the base station
 #   --MODE TARGET   only that target (thumbv6m or riscv32imac)
 #   --profile       after --table: each target's hot spots in one scenario's counted regions (PROFILE_SCENARIO,
 #                   default depth_f3_i8), from a second run with the plugin's per-PC profile (measure.sh's
@@ -24,6 +25,8 @@ LLVM_BIN="$(rustc --print sysroot)/lib/rustlib/$HOST/bin"
 [ -x "$LLVM_BIN/llvm-size" ] || rustup component add llvm-tools
 # shellcheck source=flash-limit.sh
 . "$BOARDS/flash-limit.sh"
+# shellcheck source=accuracy-row.sh
+. "$BOARDS/accuracy-row.sh"
 # board directory, target triple, name in the table
 TARGETS=("qemu-mps2-an385 thumbv6m-none-eabi thumbv6m"
          "qemu-riscv32-virt riscv32imac-unknown-none-elf riscv32imac")
@@ -114,25 +117,26 @@ runs = {}
 for f, m in zip(frames, marks):
     d = kv(f)
     runs.setdefault(int(d["s"]), []).append((int(d["points"]), int(m.split()[2])))
-# The depth-frame scenarios at f = 3, one row per feature type: by the scenario's name where the firmware
-# reports one (latentbki-selftest's SELF_TEST), else every f = 3 scenario of 4,096-point frames (f32).
-FEATURES = {"depth_f3": "f32", "depth_f3_i8": "i8"}
-for s, fr in sorted(runs.items()):
-    d = scen[s]
-    if "name" in d:
-        if d["name"] not in FEATURES:
-            continue
-        feats = FEATURES[d["name"]]
-    elif d["f"] == "3" and fr[0][0] == 4096:
-        feats = "f32"
-    else:
+# At f = 3, by the scenario's name (latentbki-selftest's SELF_TEST): the depth frames per feature type, and the
+# sparse sensor patterns with int8 features (the integer path these targets run; their f32 rows are soft float).
+NAMED = re.compile(r'name=(\w+)')
+ROWS = {
+    "depth_f3": ("f32 features", "depth frames", "none (soft float: the i8 path is for this target)"),
+    "depth_f3_i8": ("i8 features", "depth frames", "≤ 2,000"),
+    "tof_f3_i8": ("i8 features, ToF 8×8", "8×8 zones", "≤ 3,000"),
+    "lidar_f3_i8": ("i8 features, scanning LiDAR", "revolutions of 360 beams, room and corridor", "≤ 3,000"),
+}
+names = {int(kv(l)["s"]): NAMED.search(l).group(1) for l in lines if l.startswith("scenario ")}
+for s, fr in sorted(runs.items(), key=lambda r: list(ROWS).index(names[r[0]]) if names[r[0]] in ROWS else 99):
+    if names[s] not in ROWS:
         continue
+    what, unit, goal = ROWS[names[s]]
     per = sorted(i / p for p, i in fr if p > 0)
     mean = sum(i for _, i in fr) / sum(p for p, _ in fr)
-    goal = "≤ 2,000" if feats == "i8" else "none (soft float: the i8 path is for this target)"
-    print(f"| instructions/point, f = 3, {name}, {feats} features ({len(fr)} depth frames, {sum(p for p, _ in fr):,} points, "
+    print(f"| instructions/point, f = 3, {name}, {what} ({len(fr)} {unit}, {sum(p for p, _ in fr):,} points, "
           f"scenario {s}) | {mean:.0f} mean, median {per[len(per) // 2]:.0f}, {per[0]:.0f}–{per[-1]:.0f} per frame | {goal} |")
 PY
+  accuracy_row "$name" "$out/uart.bin"
 }
 
 profile() {

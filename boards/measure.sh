@@ -38,6 +38,8 @@ LLVM_BIN="$(rustc --print sysroot)/lib/rustlib/$HOST/bin"
 [ -x "$LLVM_BIN/llvm-size" ] || rustup component add llvm-tools
 # shellcheck source=flash-limit.sh
 . ../flash-limit.sh
+# shellcheck source=accuracy-row.sh
+. ../accuracy-row.sh
 ELF="$CARGO_TARGET_DIR/thumbv7em-none-eabihf/release/latentbki-qemu-mps2-an386"
 OUT="$CARGO_TARGET_DIR/measure"
 mkdir -p "$OUT"
@@ -269,6 +271,9 @@ rows = {
     "full_map": ("instructions/point, f = 3, full map", "depth frames, the window holds the room", ""),
     "tof_f3": ("instructions/point, f = 3, ToF 8×8", "8×8 zones", "≤ 1,500"),
     "lidar_f3": ("instructions/point, f = 3, scanning LiDAR", "revolutions of 360 beams, room and corridor", "≤ 1,500"),
+    "tof_f3_i8": ("instructions/point, f = 3, thumbv7em, i8 features, ToF 8×8", "8×8 zones", ""),
+    "lidar_f3_i8": ("instructions/point, f = 3, thumbv7em, i8 features, scanning LiDAR",
+                    "revolutions of 360 beams, room and corridor", ""),
 }
 for s, frames in sorted(runs.items(), key=lambda r: list(rows).index(names[r[0]]) if names[r[0]] in rows else 99):
     if names[s] not in rows:
@@ -291,6 +296,9 @@ for s in sorted(scen):
     print(f"| scenario {s} (f = {d['f']}) | {d['points']} points, {d['integrated']} integrated, peak {d['peak_voxels']} voxels held, "
           f"{d['evicted']} evicted, {d['frames_sent']} frames / {d['bytes_sent']} B sent | |")
 PY
+# The accuracy that ships: this run's UART bytes through the base station, against the f32 map of the points
+# the firmware took (host-sim's firmware_accuracy; a host build, without the firmware's flags).
+accuracy_row thumbv7em "$OUT/uart.bin"
 # The same table, continued: the targets without an FPU (thumbv6m, riscv32imac) on their QEMU boards.
 bash ../measure-targets.sh --table
 

@@ -3,7 +3,8 @@
 # (each board's run-qemu.sh, its cargo runner, calls this with its machine).
 # Exit code = the firmware's semihosting exit code (124 = timeout). Semihosting stdout goes to stdout.
 # Env:
-#   QEMU_TIMEOUT     seconds before giving up (default 300)
+#   QEMU_TIMEOUT     seconds before giving up (default 900: the thumbv6m self-test runs minutes of soft float on
+#                    a loaded machine)
 #   QEMU_SERIAL      file receiving the raw UART bytes (default: <elf>.uart.bin)
 #   QEMU_PLUGIN      path to the insncount plugin (.so); its log goes to QEMU_PLUGIN_LOG (default <elf>.insn.log)
 #   QEMU_PLUGIN_ARGS extra plugin arguments, comma separated (regions=on, profile=on)
@@ -22,4 +23,4 @@ if [ -n "${QEMU_PLUGIN:-}" ]; then
   args+=(-icount shift=0 -plugin "$plugin" -d plugin -D "${QEMU_PLUGIN_LOG:-$elf.insn.log}")
 fi
 # </dev/null: QEMU must not own the terminal or read stdin.
-timeout --foreground -k 5 "${QEMU_TIMEOUT:-300}" "${machine[0]}" "${args[@]}" "$@" </dev/null
+timeout --foreground -k 5 "${QEMU_TIMEOUT:-900}" "${machine[0]}" "${args[@]}" "$@" </dev/null

@@ -34,7 +34,7 @@ const BUDGET: usize = 1152;
 fn main() {
     let mapper = MAPPER.take();
     if let Err(e) = mapper.configure(&SETUP) {
-        panic!("setup refused: {e:?}");
+        panic!("{e}"); // e.g. "setup refused by the map: window radius …" (SetupError: Display)
     }
     let mut link = Link(0);
     let mut points = [[0.0f32; 3]; 64];

@@ -23,6 +23,7 @@ pub const FEATURE_LIMIT: f32 = 1e5;
 /// Why one input point was not integrated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum Rejection {
     /// Its position has a NaN or infinite coordinate.
     NonFinitePosition,
@@ -43,6 +44,29 @@ pub enum Rejection {
     /// or so large that a feature could exceed [`FEATURE_LIMIT`]).
     FeatureScale,
 }
+
+impl core::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::NonFinitePosition => "point refused: a coordinate is NaN or infinite",
+            Self::NonFiniteFeature => "point refused: its feature is not finite or too large",
+            Self::KeyOutOfRange => "point refused: too far from the map origin",
+            Self::NoRoom => {
+                "point refused: no room in the map (full, and the link takes no eviction)"
+            }
+            Self::OutsideWindow => "point refused: outside the map's window around the robot",
+            Self::Unpaired => {
+                "point refused: a point without a feature or a feature without a point"
+            }
+            Self::CodeOutOfRange => "point refused: an int8 code of -128",
+            Self::FeatureScale => {
+                "point refused: int8 feature without a valid int8 scale in the setup"
+            }
+        })
+    }
+}
+
+impl core::error::Error for Rejection {}
 
 /// Counts of rejected points, by reason. Every point handed to a map is either integrated or counted here.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

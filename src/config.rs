@@ -104,6 +104,7 @@ pub struct MapConfig {
 /// Why a [`MapConfig`] was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ConfigError {
     /// The voxel size must be finite and > 0.
     VoxelSize,

@@ -66,6 +66,7 @@ impl<const D: usize, const F: usize> Pca<D, F> {
 /// Why a codebook could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum CodebookError {
     /// More categories than the codebook's capacity.
     TooManyCategories,

@@ -80,6 +80,7 @@ pub fn gathered_count<const D: usize, const CAP: usize, M: ObsLookup<D> + ?Sized
 /// Why a view cannot be scored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ScoreError {
     /// The kernel table is in sub-voxel mode (see [`GatherError`]).
     SubVoxelKernel,

@@ -29,12 +29,24 @@ pub struct VoxelKey {
 /// Why a point could not be given a voxel key.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum KeyError {
     /// A coordinate is NaN or infinite.
     NonFinite,
     /// A coordinate is beyond ±[`KEY_LIMIT`] voxels.
     OutOfRange,
 }
+
+impl core::fmt::Display for KeyError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::NonFinite => "a coordinate is NaN or infinite",
+            Self::OutOfRange => "a coordinate is beyond the voxel key range",
+        })
+    }
+}
+
+impl core::error::Error for KeyError {}
 
 impl VoxelKey {
     /// A key from its three indices (not range-checked: use for keys that came from [`Self::from_position`]).

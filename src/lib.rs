@@ -59,12 +59,14 @@
 //! ## Modules
 //!
 //! They follow the data: [`config`] → [`kernel`] (sparse kernel and its lookup table) → [`key`]
-//! (voxel keys, poses; [`fixed_pose`]: integer sensor points without float) → [`batch`] (validating a
+//! (voxel keys, poses; [`fixed_pose`]: integer sensor points without float; [`tof`]: a multizone ToF's zone
+//! rays as a fixed-point table) → [`batch`] (validating a
 //! point) → [`obs`] (what a voxel observed — in f32, or as exact integer sums of int8 codes — and gathering
 //! posteriors through the kernel; [`forget`]: letting old observations fade) → [`stats`] (the posterior
 //! update) → [`inference`]
 //! and [`sampling`] (uncertainty; [`info_gain`]: where to look next) →
-//! [`decode`] (open-vocabulary queries). On the robot: [`quant`] (compact voxels) → [`local_map`] →
+//! [`decode`] (open-vocabulary queries; [`classes`]: a closed-set segmenter's scores as features the base
+//! station decodes). On the robot: [`quant`] (compact voxels) → [`local_map`] →
 //! [`sink`] (evictions) → [`wire`] (messages and summaries) → [`frame`] (framing, encoder, decoder,
 //! acknowledgements) → [`mapper`] (all of it as one value; the firmware author's guide is
 //! `docs/firmware.md`); at the other end of the link, [`receiver`] (the acceptance rules and
@@ -79,6 +81,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod batch;
+pub mod classes;
 pub mod config;
 pub mod decode;
 pub mod f32math;
@@ -97,15 +100,19 @@ pub mod receiver;
 pub mod sampling;
 pub mod sink;
 pub mod stats;
+pub mod tof;
 pub mod wire;
 
 // ----- The front door: what a firmware author names. Everything else lives in the module that owns it
 // (`key::VoxelKey`, `local_map::LocalMap`, `frame::FrameDecoder`, `decode::Codebook` …).
-pub use batch::RejectionCounts;
+pub use batch::{Rejection, RejectionCounts};
+pub use classes::{ClassPrototypes, MixError};
 pub use config::{ConfigError, KernelMode, MapConfig, Prior};
 pub use frame::{EncoderSettings, TickError, TickReport};
-pub use mapper::{DrainError, Mapper, SensorFrame, Setup, SetupError};
+pub use key::KeyError;
+pub use mapper::{DrainError, DrainReport, Mapper, SensorFrame, Setup, SetupError};
 pub use quant::packed_len;
+pub use wire::WireError;
 
 /// `docs/firmware.md` (the firmware author's guide), compiled so its examples run as doc tests.
 #[cfg(doctest)]

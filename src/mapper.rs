@@ -35,6 +35,7 @@ pub use tap::{EvictionTap, NoTap};
 /// Why [`Mapper::drain`] stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum DrainError<E> {
     /// The writer failed; what was not sent stays in the map or the encoder's queue.
     Write(E),
@@ -42,6 +43,33 @@ pub enum DrainError<E> {
     /// or, with a back channel, the re-send buffer is full of unacknowledged frames: read acknowledgements
     /// ([`Mapper::poll_acks`]) and drain again.
     Stuck,
+}
+
+impl<E: core::fmt::Debug> core::fmt::Display for DrainError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Write(e) => write!(f, "drain: writing to the link failed ({e:?}); what was not sent is kept"),
+            Self::Stuck => f.write_str(
+                "drain: a voxel cannot be sent (frame too small for a summary, no session, or the re-send buffer full of unacknowledged frames)",
+            ),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for DrainError<E> {}
+
+/// What one [`Mapper::drain_within`] call did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DrainReport {
+    /// Voxels evicted from the map into the encoder's queue.
+    pub evicted: u32,
+    /// Bytes written (≤ the budget).
+    pub bytes: usize,
+    /// Everything was sent: the map and the queue are empty, no frame waits for its write, and the last
+    /// frame written is the closing link statistics. (With a back channel, frames may still wait for their
+    /// acknowledgement: [`Mapper::is_drained`].)
+    pub done: bool,
 }
 
 impl<E> From<TickError<E>> for DrainError<E> {
@@ -299,7 +327,8 @@ impl<
     /// number of voxels evicted from the map. With a back channel, frames may still await their
     /// acknowledgement after it returns (read them with [`Self::poll_acks`], tick until
     /// [`Self::is_drained`]); when the re-send buffer is full it returns [`DrainError::Stuck`]: read
-    /// acknowledgements and drain again.
+    /// acknowledgements and drain again. A firmware that must not write everything at once calls
+    /// [`Self::drain_within`] with a byte budget per call instead.
     pub fn drain<W: embedded_io::Write>(&mut self, w: &mut W) -> Result<u32, DrainError<W::Error>> {
         self.drain_tapped(w, NoTap)
     }
@@ -310,28 +339,74 @@ impl<
         w: &mut W,
         mut tap: T,
     ) -> Result<u32, DrainError<W::Error>> {
-        let mut evicted = 0u32;
+        let r = self.drain_within_tapped(w, usize::MAX, &mut tap)?;
+        if r.done {
+            Ok(r.evicted)
+        } else {
+            Err(DrainError::Stuck)
+        }
+    }
+
+    /// One step of the end of the run, within `budget` bytes: evict voxels from the map into the queue and
+    /// send whole frames — re-sends due, queued voxels, then the closing link statistics — until the budget
+    /// or the work runs out. Call it again (reading acknowledgements in between, with a back channel) until
+    /// [`DrainReport::done`]. It returns [`DrainError::Stuck`] only when nothing at all could be sent with
+    /// at least a whole frame (`N` bytes) of budget: a frame size too small for one summary, no session, or
+    /// a re-send buffer full of unacknowledged frames (read acknowledgements, then drain again).
+    pub fn drain_within<W: embedded_io::Write>(
+        &mut self,
+        w: &mut W,
+        budget: usize,
+    ) -> Result<DrainReport, DrainError<W::Error>> {
+        self.drain_within_tapped(w, budget, &mut NoTap)
+    }
+
+    fn drain_within_tapped<W: embedded_io::Write, T: EvictionTap<D>>(
+        &mut self,
+        w: &mut W,
+        budget: usize,
+        tap: &mut T,
+    ) -> Result<DrainReport, DrainError<W::Error>> {
+        let mut report = DrainReport::default();
         // The queue refuses when full: alternate flushing the map and sending until both are empty.
         loop {
             let mut sink = Tapped {
                 sink: &mut self.encoder,
-                tap: &mut tap,
+                tap: &mut *tap,
             };
             let flushed = self.map.flush(&mut sink);
             let (Ok(n) | Err(n)) = flushed;
-            evicted = evicted.saturating_add(n as u32);
-            if flushed.is_ok() && self.encoder.queued() == 0 {
-                break;
+            report.evicted = report.evicted.saturating_add(n as u32);
+            let left = budget.saturating_sub(report.bytes);
+            if flushed.is_ok() && self.encoder.queued() == 0 && !self.encoder.has_pending() {
+                if self.encoder.frames_since_stats() == 0 && self.encoder.next_seq() != 0 {
+                    report.done = true; // the closing statistics are the last frame written
+                    return Ok(report);
+                }
+                return match self.encoder.send_stats_within(w, left) {
+                    Ok(Some(sent)) => {
+                        report.bytes += sent;
+                        report.done = true;
+                        Ok(report)
+                    }
+                    Ok(None) if left >= N => Err(DrainError::Stuck),
+                    Ok(None) => Ok(report),
+                    Err(e) => Err(DrainError::Write(e)),
+                };
             }
             let sent = self
                 .encoder
-                .tick(w, usize::MAX, core::iter::empty::<Evicted<'_, D>>())?;
-            if sent.evicted_sent == 0 && n == 0 {
-                return Err(DrainError::Stuck);
+                .tick(w, left, core::iter::empty::<Evicted<'_, D>>())?;
+            report.bytes += sent.bytes;
+            if sent.frames == sent.resent && n == 0 {
+                // No progress: out of budget, or (a whole frame's budget left) stuck.
+                return if budget.saturating_sub(report.bytes) >= N {
+                    Err(DrainError::Stuck)
+                } else {
+                    Ok(report)
+                };
             }
         }
-        self.encoder.send_stats(w).map_err(DrainError::Write)?;
-        Ok(evicted)
     }
 
     /// How many evicted voxels (summaries) the encoder's queue holds with this session's codec: `QB` / the

@@ -106,6 +106,36 @@ pub struct TileArgs {
     /// Keep at most this many of the file's points (every k-th, in file order) [default: 2000000].
     #[arg(long)]
     pub max_points: Option<usize>,
+    /// How the robot flies: `survey` (laps over every cell that holds points, as many as the built-in
+    /// tile's revisits; frames planned from the tile unless --frames) or `loop` (over the middle 60 %)
+    /// [default: survey with --las, loop on the built-in tile].
+    #[arg(long, value_enum)]
+    pub flight: Option<FlightArg>,
+    /// How the map scale is chosen when --voxel-size and --kernel-length are not given: `validate`
+    /// (candidates from the point spacing scored on a validation split of the integrated points) or
+    /// `spacing` (voxel ≈ spacing, ℓ = 5 voxels) [default: validate with --las; the built-in tile keeps
+    /// the paper's 0.1 m / 0.5 m unless asked].
+    #[arg(long, value_enum)]
+    pub scale: Option<ScaleArg>,
+}
+
+/// How the robot flies over the tile.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FlightArg {
+    /// Laps of a survey over every cell that holds points, planned so that each surface is observed by
+    /// about as many frames as on the built-in tile.
+    Survey,
+    /// A closed loop over the middle 60 % of the tile (the built-in tile's flight).
+    Loop,
+}
+
+/// How the tile's map scale is chosen when it is not given.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScaleArg {
+    /// Candidates from the point spacing, scored on a validation split of the integrated points.
+    Validate,
+    /// Voxel ≈ point spacing, ℓ = 5 voxels (the rule before validation).
+    Spacing,
 }
 
 impl TileArgs {
@@ -128,6 +158,12 @@ impl TileArgs {
 }
 
 impl TileArgs {
+    /// Whether the robot flies the revisiting survey (the default with `--las`).
+    pub fn survey(&self) -> bool {
+        self.flight
+            .map_or(self.las.is_some(), |f| f == FlightArg::Survey)
+    }
+
     /// How to read `--las`.
     pub fn read_options(&self) -> ReadOptions {
         ReadOptions {

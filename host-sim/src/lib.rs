@@ -9,6 +9,7 @@ pub mod cli_args;
 pub mod demo_radio;
 pub mod eval;
 pub mod explore;
+pub mod feature_space;
 pub mod las_frame;
 pub mod link;
 pub mod npy_io;

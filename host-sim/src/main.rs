@@ -35,6 +35,9 @@ enum Command {
     /// Exploration: the robot picks its next view by information gain, against random and nearest-frontier
     /// choice; accuracy vs distance driven (out/explore.png).
     Explore(host_sim::explore::ExploreArgs),
+    /// The map scale for a robot over a labelled tile, chosen by validation, printed as the `const
+    /// MapConfig` a firmware pastes, with the RAM its map needs and whether its window holds the range.
+    Calibrate(host_sim::eval::cli::CalibrateArgs),
     /// Map a scene and show where a free-text query (a committed-vocabulary phrase) matches.
     Query(host_sim::eval::cli::QueryArgs),
     /// Receive robots' streams (serial port, file, pty or stdin) into the global map database (SQLite,
@@ -49,6 +52,9 @@ enum Command {
     /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
     /// writes it).
     MapQuery(host_sim::base_station::cli::MapQueryArgs),
+    /// The feature space of a robot's classes: the PCA the base station decodes with (DIR/pca.npz), the
+    /// firmware's constants (DIR/feature_space.rs: id, int8 scale, per-class int8 prototypes).
+    FeatureSpace(host_sim::feature_space::FeatureSpaceArgs),
     /// Re-embed the vocabulary with the real text encoder and write the table (feature `encoder`).
     #[cfg(feature = "encoder")]
     EmbedVocab(EmbedVocabArgs),
@@ -302,6 +308,7 @@ fn run() -> Result<()> {
             Ok(())
         }
         Command::Eval(args) => host_sim::eval::cli::eval(&args),
+        Command::Calibrate(args) => host_sim::eval::cli::calibrate(&args),
         Command::Bench(args) => host_sim::bench::run(&args),
         Command::ViewBench(args) => host_sim::view_bench::run(&args),
         Command::Explore(args) => host_sim::explore::explore(&args),
@@ -328,6 +335,7 @@ fn run() -> Result<()> {
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
         Command::MapInfo(args) => host_sim::base_station::cli::map_info(&args),
         Command::MapQuery(args) => host_sim::base_station::cli::map_query(&args),
+        Command::FeatureSpace(args) => host_sim::feature_space::run(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;
             let clouds = args.frames.iter().filter(|p| is_point_cloud(p)).count();

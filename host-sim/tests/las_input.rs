@@ -281,11 +281,43 @@ fn eval_on_their_laz_gives_the_table_and_the_pictures() {
             p.display()
         );
     }
-    // The scale (here the paper's 0.1 m, from the tile's 0.094 m spacing) and where it came from.
+    // The flight's figure, and the scale: chosen by validation on the integrated points, the candidates
+    // (from the tile's 0.094 m spacing: the paper's 0.1 m among them) and their scores in results.md.
+    assert!(
+        stdout.contains("frames per surface: each of the tile's points is returned by"),
+        "{stdout}"
+    );
     let md = std::fs::read_to_string(out.join("results.md")).unwrap();
     assert!(
-        md.contains("map scale: voxel 0.100 m, ℓ = 0.500 m (from the points' spacing ≈ 0.0935 m"),
+        md.contains("Scale chosen by validation: 25 candidates"),
         "{md}"
+    );
+    assert!(md.contains("| 0.100 | 0.500 | 5.0 | 3 |"), "{md}");
+    assert!(
+        md.contains("f = 3 (chosen by validation: best of 25 candidates"),
+        "{md}"
+    );
+    // The spacing rule is still there when asked for.
+    let (ok, stdout, stderr) = host_sim(
+        &[
+            "eval",
+            "--las",
+            las,
+            "--frames",
+            "4",
+            "--points",
+            "1500",
+            "--no-sweep",
+            "--scale",
+            "spacing",
+        ],
+        &out,
+    );
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(
+        stdout
+            .contains("map scale: voxel 0.100 m, ℓ = 0.500 m (from the points' spacing ≈ 0.0935 m"),
+        "{stdout}"
     );
     assert!(md.contains("| bridge deck | "), "{md}");
 }
@@ -710,7 +742,11 @@ fn every_version_format_and_crs_form_loads() {
         &out,
     );
     assert!(ok, "{stdout}\n{stderr}");
-    assert!(stdout.contains("map scale: voxel 0.500 m"), "{stdout}");
+    assert!(stdout.contains("map scale: voxel "), "{stdout}");
+    assert!(
+        stdout.contains("(chosen by validation: best of 25 candidates"),
+        "{stdout}"
+    );
     let md = std::fs::read_to_string(out.join("results.md")).unwrap();
     assert!(md.contains("| high vegetation | "), "{md}");
     assert!(out.join("tile/query_tree.png").exists());

@@ -210,18 +210,19 @@ fn options_are_checked_before_the_stream_is_read() {
                 format!("{} does not exist", missing.display()),
             ],
         ),
+        // (A missing folder of --png or --ply is created when the file is written.)
         (
-            vec!["--png".into(), p(&missing.join("g"))],
+            vec!["--png".into(), p(&junk.join("g"))],
             vec![
                 "--png".into(),
-                format!("{} does not exist", missing.display()),
+                format!("{} is not a folder", junk.display()),
             ],
         ),
         (
-            vec!["--ply".into(), p(&missing.join("g.ply"))],
+            vec!["--ply".into(), p(&junk.join("g.ply"))],
             vec![
                 "--ply".into(),
-                format!("{} does not exist", missing.display()),
+                format!("{} is not a folder", junk.display()),
             ],
         ),
         (

@@ -207,3 +207,18 @@ type Chunk5 = Chunk<16, 5>;
 type Chunk64 = Chunk<16, 64>;
 use std::boxed::Box;
 use std::vec::Vec;
+
+/// The self-test's 8×8 ToF looks where the library's zone table (`latentbki::tof::VL53L5CX_8X8`, what a
+/// firmware uses) says a VL53L5CX's zones look.
+#[test]
+fn the_tof_zones_are_the_library_table() {
+    let table = latentbki::tof::VL53L5CX_8X8;
+    let sensor = DepthSensor::TOF_8X8;
+    assert_eq!(sensor.zones() as usize, table.rays_q14.len());
+    for z in 0..sensor.zones() {
+        let (a, b) = (sensor.ray(z), table.ray(z as usize).unwrap());
+        for i in 0..3 {
+            assert!((a[i] - b[i]).abs() < 1e-4, "zone {z}: {a:?} vs {b:?}");
+        }
+    }
+}

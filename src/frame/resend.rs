@@ -229,6 +229,14 @@ impl Ring {
             .unwrap_or(&[])
     }
 
+    /// The wire bytes of the record at `at` (empty if there is none).
+    pub fn frame_at<'r>(&self, region: &'r [u8], at: usize) -> &'r [u8] {
+        match read_head(region, at) {
+            Some(r) => self.frame(region, at, &r),
+            None => &[],
+        }
+    }
+
     /// The record at `at` was written again at tick `now`.
     pub fn resent(&mut self, region: &mut [u8], at: usize, now: u32) {
         if let Some(mut r) = read_head(region, at) {

@@ -201,3 +201,141 @@ fn with_acknowledgements_nothing_is_lost_on_a_lossy_link() {
     assert!(s.resent > 0 && s.acked > 0, "{s:?}");
     assert!(s.bad_acks > 0 && robot.ack_stats().accepted > 0);
 }
+
+/// A UART that fails: the first `fail` writes it is asked for fail, each after passing on `cut` bytes of
+/// the frame (0: nothing reaches the link; a frame's length − 1: all of it but its closing delimiter).
+struct FailingUart {
+    out: Vec<u8>,
+    fail: u32,
+    cut: usize,
+}
+impl embedded_io::ErrorType for FailingUart {
+    type Error = embedded_io::ErrorKind;
+}
+impl embedded_io::Write for FailingUart {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        if self.fail > 0 {
+            self.fail -= 1;
+            let n = self.cut.min(buf.len().saturating_sub(1));
+            self.out.extend_from_slice(&buf[..n]);
+            return Err(embedded_io::ErrorKind::Other);
+        }
+        self.out.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// A failed write consumes no sequence number: whatever part of a frame reached the link before the UART
+/// failed (none, some, all but the last delimiter), the frame is written again byte for byte, the base
+/// station counts 0 frames lost and gets every point once — with a back channel and without.
+#[test]
+fn a_uart_that_fails_n_times_costs_no_frame_and_no_point() {
+    for resend in [Resend::OFF, Resend::new(2048, 3)] {
+        for cut in [0usize, 1, 9, 10_000] {
+            let mut robot = Box::new(Robot::EMPTY);
+            robot.configure(&setup(resend)).unwrap();
+            let mut station = Station::new();
+            let mut back = BackChannel::default();
+            let mut uart = FailingUart {
+                out: Vec::new(),
+                fail: 0,
+                cut,
+            };
+            let mut failures = 0;
+            for f in 0..12 {
+                let (pose, points, features) = sensor_frame(f as f32 * 0.4);
+                robot.integrate(&pose, &points, &features);
+                // Every third tick the UART fails twice.
+                if f % 3 == 1 {
+                    uart.fail = 2;
+                }
+                if robot.tick_live(&mut uart, 1500, 300).is_err() {
+                    failures += 1;
+                }
+                station.receive(&core::mem::take(&mut uart.out), &mut back);
+                robot.poll_acks(&mut back).unwrap();
+            }
+            uart.fail = 3;
+            for _ in 0..200 {
+                if robot.drain_within(&mut uart, 700).is_err() {
+                    failures += 1;
+                }
+                let _ = robot.tick(&mut uart, 1500);
+                station.receive(&core::mem::take(&mut uart.out), &mut back);
+                robot.poll_acks(&mut back).unwrap();
+                if robot.is_drained() && !robot.encoder().has_pending() {
+                    break;
+                }
+            }
+            let what = (resend.is_on(), cut);
+            assert!(failures >= 5, "{what:?}: {failures} failed ticks");
+            assert!(robot.is_drained(), "{what:?}");
+            assert_eq!(robot.encoder().stats().write_errors, 4 * 2 + 3, "{what:?}");
+            assert_eq!(station.final_points, 1200.0, "{what:?}: every point once");
+            let (_, seq) = station.sessions.iter().next().unwrap();
+            assert_eq!(seq.lost, 0, "{what:?}: no frame counted lost");
+            assert_eq!(
+                seq.highest(),
+                Some(robot.encoder().next_seq() - 1),
+                "{what:?}"
+            );
+        }
+    }
+}
+
+/// `drain_within` spends at most its budget per call, makes progress with any budget of a whole frame,
+/// and ends with the link statistics; it sends the voxels one `drain` sends.
+#[test]
+fn drain_within_a_budget_sends_what_drain_sends() {
+    let fill = |robot: &mut Robot| {
+        robot.configure(&setup(Resend::OFF)).unwrap();
+        for f in 0..6 {
+            let (pose, points, features) = sensor_frame(f as f32);
+            robot.integrate(&pose, &points, &features);
+        }
+    };
+    let mut whole = Box::new(Robot::EMPTY);
+    fill(&mut whole);
+    let mut once = Vec::new();
+    let evicted = whole.drain(&mut once).unwrap();
+    assert!(evicted > 0);
+    let mut steps = Box::new(Robot::EMPTY);
+    fill(&mut steps);
+    let mut out = Vec::new();
+    let (mut calls, mut total) = (0, 0u32);
+    loop {
+        let before = out.len();
+        let r = steps.drain_within(&mut out, 300).unwrap();
+        assert!(r.bytes <= 300 && out.len() - before == r.bytes, "{r:?}");
+        total += r.evicted;
+        calls += 1;
+        if r.done {
+            break;
+        }
+        assert!(
+            r.bytes > 0,
+            "{r:?}: a whole frame's budget always sends one"
+        );
+    }
+    assert!(calls > 3, "{calls} calls");
+    // The same voxels (the frames may cut them differently: a budget stops a frame the queue would fill).
+    assert_eq!(total, evicted);
+    let (mut a, mut b) = (Station::new(), Station::new());
+    a.receive(&once, &mut BackChannel::default());
+    b.receive(&out, &mut BackChannel::default());
+    assert_eq!(a.final_points, 600.0);
+    assert_eq!(b.final_points, a.final_points);
+    assert_eq!(b.rx.refusals(), a.rx.refusals());
+    assert!(steps.is_drained());
+    // Done stays done: nothing more is written.
+    let r = steps.drain_within(&mut out, 300).unwrap();
+    assert_eq!((r.done, r.bytes), (true, 0));
+    // Too small a budget for any frame: nothing written, not done, not an error.
+    let mut small = Box::new(Robot::EMPTY);
+    fill(&mut small);
+    let r = small.drain_within(&mut out, 20).unwrap();
+    assert_eq!((r.done, r.bytes), (false, 0));
+}

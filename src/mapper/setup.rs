@@ -1,5 +1,6 @@
 //! What a [`Mapper`](super::Mapper) is configured with (a `const` [`Setup`]) and why it refuses one.
 
+use crate::classes::ClassPrototypes;
 use crate::config::{ConfigError, MapConfig};
 #[cfg(feature = "forgetting")]
 use crate::forget::Forgetting;
@@ -76,6 +77,28 @@ impl Setup {
         }
     }
 
+    /// The same setup declaring the feature space its features were compressed into: the id of the PCA
+    /// ([`crate::wire::feature_space_id`]; `host-sim feature-space` prints it and writes it as
+    /// `FEATURE_SPACE`). Sent in the session header; the base station refuses to decode the map with
+    /// another PCA.
+    pub const fn with_feature_space(self, feature_space: u32) -> Self {
+        Self {
+            feature_space,
+            ..self
+        }
+    }
+
+    /// The same setup for a robot whose features are mixes of `classes`' prototypes
+    /// ([`ClassPrototypes::mix`]): their feature space and their int8 scale
+    /// ([`Self::with_feature_space`], [`Self::with_int8_features`]).
+    pub const fn with_classes<const D: usize, const K: usize>(
+        self,
+        classes: &ClassPrototypes<D, K>,
+    ) -> Self {
+        self.with_feature_space(classes.feature_space)
+            .with_int8_features(classes.scale)
+    }
+
     /// The same setup cooling int8 sums by `cooling` (a hosted build takes either; bare metal its native).
     pub const fn with_cooling(self, cooling: Cooling) -> Self {
         Self { cooling, ..self }
@@ -104,9 +127,28 @@ impl Setup {
 /// Why [`Mapper::configure`](super::Mapper::configure) refused a setup.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum SetupError {
     /// The map refused its part (window radius, sub-voxel kernel, …).
     Map(ConfigError),
     /// The encoder refused its part (codec, or buffers too small for one summary).
     Link(WireError),
+}
+
+impl core::fmt::Display for SetupError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Map(e) => write!(f, "setup refused by the map: {e}"),
+            Self::Link(e) => write!(f, "setup refused by the link encoder: {e}"),
+        }
+    }
+}
+
+impl core::error::Error for SetupError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            Self::Map(e) => Some(e),
+            Self::Link(e) => Some(e),
+        }
+    }
 }

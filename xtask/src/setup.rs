@@ -213,7 +213,8 @@ fn qemu(apt: &mut Apt) -> Result<(), String> {
             Probe::Runs(v) => versions.push(format!("{bin}: {v}")),
             Probe::Missing => {
                 return Err(format!(
-                    "{bin} is still not on PATH after installing QEMU: {OPT_OUT}"
+                    "{bin} is still not on PATH after installing QEMU (apt puts it in /usr/bin): put it on PATH, \
+                     {OPT_OUT}"
                 ))
             }
             Probe::Broken(path, why) => {

@@ -1,13 +1,15 @@
 //! LatentBKI on a NUCLEO-F429ZI (STM32F429ZI: Cortex-M4F, 2 MiB flash, 192 KiB contiguous SRAM).
 //!
 //! The same loop as the QEMU firmware, wired to real peripherals: a VL53L5CX-style 8×8 ToF on I2C1
-//! (PB8 = SCL, PB9 = SDA, 400 kHz) gives ranges; each valid zone becomes a point along its ray
-//! ([`vl53l5cx::zone_ray`]); the core's `Mapper` (the quantized `LocalMap` and the `FrameEncoder`) lives in
+//! (PB8 = SCL, PB9 = SDA, 400 kHz) gives ranges; each valid zone becomes a point along its ray in integer
+//! millimetres (the library's fixed-point zone table, `latentbki::tof::VL53L5CX_8X8`, and the map's integer
+//! point path: no float per point); the core's `Mapper` (the quantized `LocalMap` and the `FrameEncoder`) lives in
 //! a static; evicted voxels stream as frames on USART3 (PD8, the ST-LINK virtual COM port, 921,600 Bd).
 //! Flash with `cargo run --release` (probe-rs).
 //!
 //! Stubbed, and why: the ToF firmware blob is ST's and not shipped (see `vl53l5cx.rs`; the board reports
-//! and keeps retrying); there is no camera, so every point carries one fixed unit vector as its feature (a real robot gets features from its vision model); there is no odometry, so the pose
+//! and keeps retrying); there is no camera, so every point carries one fixed unit vector as its feature, as int8 codes (a real
+//! robot gets features from its vision model, or its segmenter's scores through `latentbki::classes`: docs/firmware.md); there is no odometry, so the pose
 //! is fixed (a real robot passes its pose estimate).
 #![no_std]
 #![no_main]
@@ -16,10 +18,11 @@ mod vl53l5cx;
 
 use latentbki::local_map::LocalMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use latentbki::tof::VL53L5CX_8X8;
 use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
 use static_cell::ConstStaticCell;
 use stm32f4xx_hal::{i2c::I2c, pac, prelude::*};
-use vl53l5cx::{zone_ray, MultizoneRanger, Vl53l5cx, ZoneFrame, ZONES};
+use vl53l5cx::{MultizoneRanger, Vl53l5cx, ZoneFrame, ZONES};
 
 const D: usize = 64;
 const P: usize = packed_len(D);
@@ -28,15 +31,17 @@ const MAP_BUDGET: usize = 144 * 1024;
 const CAP: usize = MAP_BUDGET / LocalMap::<D, 1, P>::BYTES_PER_VOXEL;
 type Robot = Mapper<D, CAP, P, 4096, 512>;
 
-/// Robot 1, session 1, a 2 m window around the sensor, 0.1 m voxels, ℓ = 0.5 m, f = 3.
-static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1));
+/// Robot 1, session 1, a 2 m window around the sensor, 0.1 m voxels, ℓ = 0.5 m, f = 3; int8 features, a
+/// code c standing for c / 127.
+static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1))
+    .with_int8_features(1.0 / 127.0);
 /// The map and the encoder (≈ 170 KiB) in `.bss`, configured in place (never on the stack).
 static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
 
-/// The feature every point carries until a vision model provides one: a fixed unit vector.
-const FEATURE: [f32; D] = {
-    let mut f = [0.0; D];
-    f[0] = 1.0;
+/// The feature every point carries until a vision model provides one: a fixed unit vector (int8 codes).
+const FEATURE: [i8; D] = {
+    let mut f = [0; D];
+    f[0] = 127;
     f
 };
 
@@ -96,10 +101,11 @@ fn main() -> ! {
         // One sensor frame, a point at a time (no 64 × 256-byte feature buffer).
         let mut batch = mapper.begin_frame(&pose);
         for z in (0..ZONES).filter(|&z| frame.valid(z)) {
-            let r = f32::from(frame.distance_mm[z]) * 1e-3;
-            let ray = zone_ray(z);
-            let _ = batch.add_point([ray[0] * r, ray[1] * r, ray[2] * r], &FEATURE);
-            // refusals are counted
+            // valid() means a positive range: it fits u16.
+            let range = u16::try_from(frame.distance_mm[z]).unwrap_or(0);
+            if let Some(point_mm) = VL53L5CX_8X8.point_mm(z, range) {
+                let _ = batch.add_point_mm_i8(point_mm, &FEATURE); // refusals are counted
+            }
         }
         // 921,600 Bd at 15 frames/s ≈ 6 kB per frame.
         let _ = mapper.tick(&mut uart, 6000);

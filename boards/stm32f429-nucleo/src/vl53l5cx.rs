@@ -13,22 +13,8 @@ use embedded_hal::i2c::I2c;
 /// Zones per frame (8×8 mode).
 pub const ZONES: usize = 64;
 
-/// Zones per row (the sensor reports 8 rows of 8, row by row).
-const ZONES_PER_ROW: usize = 8;
-
-/// tan(22.5°): the sensor sees 45° × 45° (63° diagonal), split evenly into 8 × 8 zones.
-const TAN_HALF_FOV: f32 = 0.414_213_57;
-
-/// Unit direction of zone `z`'s centre ray in the sensor frame (x right, y down, z forward): a reported
-/// distance `r` is the point `r · ray`.
-pub fn zone_ray(z: usize) -> [f32; 3] {
-    let (col, row) = (z % ZONES_PER_ROW, (z / ZONES_PER_ROW) % ZONES_PER_ROW);
-    let n = ZONES_PER_ROW as f32;
-    let x = ((col as f32 + 0.5) / n * 2.0 - 1.0) * TAN_HALF_FOV;
-    let y = ((row as f32 + 0.5) / n * 2.0 - 1.0) * TAN_HALF_FOV;
-    let inv = 1.0 / libm::sqrtf(x * x + y * y + 1.0);
-    [x * inv, y * inv, inv]
-}
+// The zones' directions: the library's fixed-point table (`latentbki::tof::VL53L5CX_8X8`: 45° × 45°, 8 × 8
+// zones row by row, x right, y down, z forward).
 
 /// One frame: distance in millimetres and ULD target status per zone (5 and 9 = valid).
 #[derive(Clone, Copy, Debug)]

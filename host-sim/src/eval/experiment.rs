@@ -142,6 +142,7 @@ pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame
                 points: Vec::new(),
                 map_points: Vec::new(),
                 features: Vec::new(),
+                classes: Vec::new(),
                 held_points: Vec::new(),
                 held_classes: Vec::new(),
                 held_features: Vec::new(),
@@ -159,6 +160,7 @@ pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame
                     out.map_points
                         .push(latentbki::key::to_map_frame(&f.pose, s));
                     out.features.push(y);
+                    out.classes.push(p.class);
                 }
             }
             out

@@ -47,6 +47,8 @@ pub struct EncodedFrame {
     pub map_points: Vec<[f32; 3]>,
     /// Their compressed features.
     pub features: Vec<Feature>,
+    /// Their true classes (what the scale search validates against; no map reads them).
+    pub classes: Vec<u16>,
     /// Held-out points, map frame.
     pub held_points: Vec<[f32; 3]>,
     /// Their true classes.

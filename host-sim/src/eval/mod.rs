@@ -13,6 +13,7 @@ pub mod figures;
 pub mod methods;
 pub mod metrics;
 pub mod runner;
+pub mod scale_search;
 mod scene_report;
 pub mod scenes;
 pub mod sparsification;

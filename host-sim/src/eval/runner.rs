@@ -28,7 +28,7 @@ fn workers() -> usize {
 
 /// Run `work` on every job on the worker threads, heaviest (by `weight`) first so the last thread to finish
 /// is not the slowest job started last. Results come back in the order of `jobs`.
-fn parallel<J: Sync, R: Send>(
+pub(super) fn parallel<J: Sync, R: Send>(
     jobs: &[J],
     weight: impl Fn(&J) -> u64,
     work: impl Fn(&J) -> R + Sync,

@@ -42,23 +42,47 @@ pub fn run(
     link: Option<Box<dyn Radio>>,
 ) -> Result<Report> {
     let vocab = Vocabulary::builtin();
-    let source = SceneSource::new(scene, options, setup.seed)?;
+    let mut source = SceneSource::new(scene, options, setup.seed)?;
     let (train, test) = source.train_and_test()?;
-    let setup = &Setup {
-        device_window: source.device_window(&test.config),
-        ..*setup
-    };
     let dec = experiment::decoding(&vocab, &train, setup)?;
     let frames = experiment::encode(&test, &dec, setup);
-    let f = test.config.filter_size();
-    let methods = Method::for_filter(f);
+    // The scale: given, or chosen now by validation on the integrated points (never the held-out ones).
+    let (chosen, choice) = source.resolve_config(&frames, &dec, setup)?;
+    // Without a choice, the sequence's own configuration (indoors the paper's 0.05 m).
+    let config = if choice.is_some() {
+        chosen
+    } else {
+        test.config
+    };
+    if choice.is_some() {
+        println!(
+            "map scale: {} (candidates in the table below)",
+            source.scale_note()
+        );
+    }
+    let setup = &Setup {
+        device_window: source.device_window(&config),
+        ..*setup
+    };
+    let f = config.filter_size();
+    let device_refusal = source.device_refusal(&config);
+    let methods: Vec<Method> = Method::for_filter(f)
+        .into_iter()
+        .filter(|m| {
+            device_refusal.is_none() || !matches!(m, Method::OnDevice(_) | Method::OnDeviceInt8(_))
+        })
+        .collect();
     let budgets = match scene {
         Scene::Tile => &options.sweep_tile,
         Scene::Indoor => &options.sweep_indoor,
     };
     let sweep = if sweep && !budgets.is_empty() {
         Sweep::new(
-            &|b| source.sequence(b, false),
+            &|b| {
+                let mut seq = source.sequence(b, false);
+                seq.config = config;
+                seq
+            },
             budgets,
             &options.sweep_filters,
             &dec,
@@ -71,7 +95,7 @@ pub fn run(
         &methods,
         &experiment::Inputs {
             frames: &frames,
-            config: &test.config,
+            config: &config,
             dec: &dec,
             setup,
         },
@@ -97,7 +121,7 @@ pub fn run(
         .or_else(|| results.iter().find(|r| r.method == Method::LatentBki(f)))
         .expect("a LatentBKI map ran");
     let snap = device.mapper.snapshot();
-    let top = TopDown::new(&snap, &test.config, test.cutaway_height);
+    let top = TopDown::new(&snap, &config, test.cutaway_height);
     let which = device.method.label();
     let mut figs = Vec::new();
     let fig = |e: Box<dyn std::error::Error + Send + Sync>| anyhow::anyhow!("drawing: {e}");
@@ -106,7 +130,7 @@ pub fn run(
         &p,
         &format!("{}: top-down semantic map ({which})", scene.name()),
         &top,
-        &test.config,
+        &config,
         &dec.decoder,
         &dec.classes,
     )
@@ -124,7 +148,7 @@ pub fn run(
         let cb =
             Decoder::from_pca(&dec.pca, &[*vocab.get(q)?]).map_err(|e| anyhow::anyhow!("{e}"))?;
         let p = dir.join(format!("query_{}.png", q.replace(' ', "_")));
-        figures::query_heatmap(&p, q, &top, &test.config, &cb).map_err(fig)?;
+        figures::query_heatmap(&p, q, &top, &config, &cb).map_err(fig)?;
         figs.push(p);
     }
     let p = dir.join("uncertainty_eopt.png");
@@ -132,7 +156,7 @@ pub fn run(
         &p,
         &format!("{}: E-optimality, authors' t_var ({which})", scene.name()),
         &top,
-        &test.config,
+        &config,
     )
     .map_err(fig)?;
     figs.push(p);
@@ -157,15 +181,21 @@ pub fn run(
         if source.scale_note().is_empty() {
             format!(
                 "voxel {} m, ℓ = {} m",
-                test.config.voxel_size(),
-                test.config.kernel_length()
+                config.voxel_size(),
+                config.kernel_length()
             )
         } else {
             format!("map scale: {}", source.scale_note())
         },
     );
-    let mut md =
-        super::tables::results_table(&format!("Scene: {}", source.title()), &results, &notes);
+    let mut md = String::new();
+    if let Some(c) = &choice {
+        md += &format!("{}\n", c.table());
+    }
+    md += &super::tables::results_table(&format!("Scene: {}", source.title()), &results, &notes);
+    if let Some(why) = &device_refusal {
+        md += &format!("\nThe on-device rows did not run at this scale: {why}.\n");
+    }
     if let Some(r) = results.iter().find(|r| r.method == Method::LatentBki(f)) {
         md += &format!(
             "\nmIoU above averages the classes present in the ground truth ({} of {}); averaged as the authors' evaluation does (all {} classes, an absent class counting 0), LatentBKI f32 (f = {f}) has {:.2} %.\n",
@@ -212,7 +242,7 @@ pub fn run(
             }
         }
     }
-    let hint = source.coverage_hint(&results, f);
+    let hint = source.coverage_hint(&results, f, &config);
     Ok(Report {
         scene,
         results,

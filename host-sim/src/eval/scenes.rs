@@ -10,11 +10,11 @@
 
 use super::experiment::{Method, MethodResult};
 pub use super::scene_report::{run, Report};
-use crate::cli_args::{MapArgs, TileArgs};
+use crate::cli_args::{MapArgs, ScaleArg, TileArgs};
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
 use crate::sim::scale;
 use crate::sim::sensor::{DepthCamera, MultizoneTof, RangeLidar};
-use crate::sim::tile::{self, significant, Tile, TileRun};
+use crate::sim::tile::{self, significant, survey, Tile, TileRun};
 use crate::sim::vocab::Vocabulary;
 use crate::sim::{mix_all, Sequence};
 use anyhow::{bail, Context, Result};
@@ -106,8 +106,14 @@ pub struct SceneOptions {
     /// The tile scene's map configuration (default: the paper's outdoor one).
     pub tile_config: MapConfig,
     /// With `Some`, the tile's map configuration is taken from these options, the voxel size and kernel
-    /// length that are not given chosen from the tile's point spacing ([`scale`]); `tile_config` is unused.
+    /// length that are not given chosen from the tile's point spacing: by validation
+    /// ([`super::scale_search`]) or by the spacing rule ([`scale`]); `tile_config` is unused.
     pub tile_map: Option<MapArgs>,
+    /// On the survey flight, plan the number of frames from the tile (each surface observed by about as
+    /// many frames as on the built-in tile) instead of flying `tile_frames`.
+    pub plan_frames: bool,
+    /// Print nothing (the tile's summary and the flight's figure): a run made only to learn the scale.
+    pub quiet: bool,
 }
 
 impl Default for SceneOptions {
@@ -125,6 +131,8 @@ impl Default for SceneOptions {
             tile: TileArgs::default(),
             tile_config: MapConfig::default(),
             tile_map: None,
+            plan_frames: true,
+            quiet: false,
         }
     }
 }
@@ -135,10 +143,22 @@ pub struct SceneSource {
     tile: Option<Tile>,
     /// The LiDAR's range and flying height over the tile, metres.
     tile_flight: (f32, f32),
-    /// The tile scene's map configuration.
+    /// Frames flown over the tile, and whether on the revisiting survey.
+    tile_frames: usize,
+    tile_survey: bool,
+    /// The survey's plan, when its frames were planned.
+    plan: Option<survey::Plan>,
+    /// The tile scene's map configuration (provisional when it is to be chosen by validation).
     tile_config: MapConfig,
+    /// Whether the tile's scale is chosen by validation ([`super::scale_search`]), and the largest
+    /// filter size it may choose.
+    validate: Option<u8>,
     /// The scale used and where it came from, one phrase (the tile scene).
     scale_note: String,
+    /// The flight and where it came from, one phrase (the tile scene).
+    flight_note: String,
+    /// The frames flown and why that many ("; …").
+    frames_note: String,
     houses: Option<(IndoorScene, IndoorScene)>,
     options: SceneOptions,
     seed: u64,
@@ -167,30 +187,94 @@ impl SceneSource {
                 )),
             ),
         };
-        let (tile_flight, tile_config, scale_note) = match &tile {
+        let scale = match &tile {
             Some(t) => Self::tile_scale(t, options)?,
-            None => ((0.0, 0.0), options.tile_config, String::new()),
+            None => TileScale {
+                flight: (0.0, 0.0),
+                config: options.tile_config,
+                validate: None,
+                note: String::new(),
+                flight_note: String::new(),
+            },
+        };
+        let survey = options.tile.survey();
+        let (tile_frames, plan) = match &tile {
+            Some(t) if survey && options.plan_frames => {
+                let run = TileRun {
+                    lidar: RangeLidar {
+                        points_per_frame: options.tile_points,
+                        range_m: scale.flight.0,
+                        ..RangeLidar::default()
+                    },
+                    altitude: scale.flight.1,
+                    ..TileRun::default()
+                };
+                let plan = survey::plan(t, &run, survey::builtin_frames_per_surface());
+                (plan.frames, Some(plan))
+            }
+            _ => (options.tile_frames, None),
+        };
+        let frames_note = if tile.is_none() {
+            String::new()
+        } else {
+            match (&plan, survey) {
+                (Some(p), _) => format!(
+                    "; {} frames planned: {} laps of a survey over the {} cells of {} m that hold points",
+                    p.frames,
+                    p.laps,
+                    p.lap_len,
+                    significant(scale.flight.0)
+                ) + &if p.budget < options.tile_points {
+                    format!(
+                        ", {} points per frame (a quarter of the {} in range: the tile holds fewer than four frames' budget of {} there)",
+                        p.budget,
+                        4 * p.budget,
+                        options.tile_points
+                    )
+                } else {
+                    String::new()
+                },
+                (None, true) => format!("; {tile_frames} frames (given) of a survey over the cells that hold points"),
+                (None, false) => format!("; {tile_frames} frames on a loop over the middle"),
+            }
         };
         Ok(Self {
             scene,
             tile,
-            tile_flight,
-            tile_config,
-            scale_note,
+            tile_flight: scale.flight,
+            tile_frames,
+            tile_survey: survey,
+            plan,
+            tile_config: scale.config,
+            validate: scale.validate,
+            scale_note: scale.note,
+            flight_note: scale.flight_note,
+            frames_note,
             houses,
             options: options.clone(),
             seed,
         })
     }
 
-    /// The tile's map configuration, sensor range and flying height, and one phrase saying where they came
-    /// from: given (the options, or the paper's defaults for the built-in tile) or measured from the tile.
-    fn tile_scale(t: &Tile, options: &SceneOptions) -> Result<((f32, f32), MapConfig, String)> {
+    /// The tile's map configuration, sensor range and flying height, and phrases saying where they came
+    /// from: given (the options, or the paper's defaults for the built-in tile), measured from the tile, or
+    /// to be chosen by validation once the frames are encoded.
+    fn tile_scale(t: &Tile, options: &SceneOptions) -> Result<TileScale> {
         let (range, _) = tile::scaled_sensor(t, options.tile_points);
         let flight_given = options.tile.range.is_some();
         let range = options.tile.range.unwrap_or(range);
         let altitude = options.tile.altitude.unwrap_or(range / 5.0);
-        let (config, map_note) = match &options.tile_map {
+        let rule = options.tile.scale == Some(ScaleArg::Spacing);
+        let asked = options.tile.scale == Some(ScaleArg::Validate);
+        let (config, map_note, validate) = match &options.tile_map {
+            Some(map) if !map.scale_given() && !rule => {
+                let voxel = scale::voxel_for_spacing(t.spacing);
+                (
+                    map.config_with_voxel(voxel)?,
+                    String::new(),
+                    Some(map.filter_size),
+                )
+            }
             Some(map) => {
                 let voxel = scale::voxel_for_spacing(t.spacing);
                 let config = map.config_with_voxel(voxel)?;
@@ -207,17 +291,47 @@ impl SceneSource {
                         significant(t.spacing)
                     ),
                 };
-                (config, note)
+                (config, note, None)
             }
-            None if options.tile == TileArgs::default()
+            None if asked => (
+                options.tile_config,
+                String::new(),
+                Some(options.tile_config.filter_size()),
+            ),
+            None if rule => {
+                let voxel = scale::voxel_for_spacing(t.spacing);
+                let c = options.tile_config;
+                let config = MapConfig::new(
+                    voxel,
+                    scale::KERNEL_VOXELS * voxel,
+                    c.filter_size(),
+                    c.prior(),
+                    c.mode(),
+                )
+                .map_err(|e| anyhow::anyhow!("invalid map configuration: {e}"))?;
+                (
+                    config,
+                    format!(
+                        "from the points' spacing ≈ {} m: voxel ≈ spacing, ℓ = {} voxels",
+                        significant(t.spacing),
+                        scale::KERNEL_VOXELS
+                    ),
+                    None,
+                )
+            }
+            None if options.tile.las.is_none()
+                && options.tile.range.is_none()
+                && options.tile.altitude.is_none()
+                && options.tile.units.is_none()
                 && options.tile_config == MapConfig::default() =>
             {
                 (
                     options.tile_config,
                     "given: the paper's outdoor configuration".to_string(),
+                    None,
                 )
             }
-            None => (options.tile_config, "given".to_string()),
+            None => (options.tile_config, "given".to_string(), None),
         };
         let flight_note = if flight_given {
             "given".to_string()
@@ -229,24 +343,112 @@ impl SceneSource {
             )
         };
         let voxel = config.voxel_size();
-        let window = scale::window_voxels(range, voxel, config.filter_size());
-        if !scale::window_fits(window) {
-            let max = latentbki::local_map::MAX_WINDOW_VOXELS as f32;
-            bail!(
-                "the LiDAR's range ({} m) spans {window:.0} voxels of {voxel} m, and the device map's window holds at most {max:.0}: give --voxel-size {} or more, or a --range below {} m",
-                significant(range),
-                significant(scale::preferred_at_least((range + 1.0) / (0.9 * max))),
-                significant(0.9 * max * voxel),
-            );
+        if validate.is_none() {
+            let window = scale::window_voxels(range, voxel, config.filter_size());
+            if !scale::window_fits(window) {
+                bail!("{}", window_error(range, &config));
+            }
         }
-        let note = format!(
-            "voxel {} m, ℓ = {} m ({map_note}); LiDAR range {} m, flying {} m above the ground ({flight_note})",
-            significant(voxel),
-            significant(config.kernel_length()),
+        let flight_note = format!(
+            "LiDAR range {} m, flying {} m above the ground ({flight_note})",
             significant(range),
             significant(altitude),
         );
-        Ok(((range, altitude), config, note))
+        let note = if validate.is_some() {
+            String::new()
+        } else {
+            format!(
+                "voxel {} m, ℓ = {} m ({map_note}); {flight_note}",
+                significant(voxel),
+                significant(config.kernel_length()),
+            )
+        };
+        Ok(TileScale {
+            flight: (range, altitude),
+            config,
+            validate,
+            note,
+            flight_note,
+        })
+    }
+
+    /// The LiDAR's range over the tile, metres.
+    pub fn range(&self) -> f32 {
+        self.tile_flight.0
+    }
+
+    /// The revisiting survey's plan, when its frames were planned from the tile.
+    pub fn plan(&self) -> Option<&survey::Plan> {
+        self.plan.as_ref()
+    }
+
+    /// The largest filter size the scale search may choose, when the tile's scale is chosen by validation
+    /// (`None`: the scale is given or follows the spacing rule).
+    pub fn validates_scale(&self) -> Option<u8> {
+        self.validate
+    }
+
+    /// The map configuration to run at, once the frames are encoded: chosen by validation on their
+    /// integrated points when the scale is not given ([`super::scale_search`]; the held-out points are
+    /// not read), else the given one. The choice, when there is one, is returned with it.
+    pub fn resolve_config(
+        &mut self,
+        frames: &[super::methods::EncodedFrame],
+        dec: &super::experiment::Decoding,
+        setup: &super::experiment::Setup,
+    ) -> Result<(MapConfig, Option<super::scale_search::Choice>)> {
+        let (Some(max_filter), Some(t)) = (self.validate, &self.tile) else {
+            return Ok((self.config(), None));
+        };
+        let candidates = super::scale_search::candidates(t.spacing, max_filter);
+        let range = self.tile_flight.0;
+        let choice = super::scale_search::choose(
+            frames,
+            &candidates,
+            &self.tile_config,
+            &dec.decoder,
+            dec.classes.len(),
+            setup,
+            &|c: &MapConfig| {
+                scale::window_fits(scale::window_voxels(range, c.voxel_size(), c.filter_size()))
+            },
+        )?;
+        self.tile_config = choice.config;
+        self.validate = None;
+        self.scale_note = format!("{}; {}", choice.describe(), self.flight_note);
+        Ok((choice.config, Some(choice)))
+    }
+
+    /// Why the robot's map cannot hold the window the sensor's range asks for at `config`, if it cannot.
+    pub fn device_refusal(&self, config: &MapConfig) -> Option<String> {
+        if self.scene != Scene::Tile {
+            return None;
+        }
+        let range = self.tile_flight.0;
+        let window = scale::window_voxels(range, config.voxel_size(), config.filter_size());
+        (!scale::window_fits(window)).then(|| window_error(range, config))
+    }
+
+    /// The flight's figure: how many frames return each of the tile's points (median, 5th percentile,
+    /// share never returned) for a sequence flown over it, against the built-in tile's.
+    pub fn frames_per_surface(&self, seq: &Sequence) -> Option<String> {
+        let t = self.tile.as_ref()?;
+        let poses: Vec<_> = seq.frames.iter().map(|f| f.pose).collect();
+        let lidar = RangeLidar {
+            points_per_frame: self.budget(),
+            range_m: self.tile_flight.0,
+            ..RangeLidar::default()
+        };
+        let counts = survey::frames_per_surface(t, &poses, &lidar);
+        let never =
+            counts.iter().filter(|&&c| c <= 0.0).count() as f32 / counts.len().max(1) as f32;
+        Some(format!(
+            "frames per surface: each of the tile's points is returned by {:.1} frames (median; 5th percentile {:.1}; {:.1} % never) — the built-in tile's flight: {:.1}",
+            survey::median(&counts),
+            survey::quantile(&counts, 0.05),
+            100.0 * never,
+            survey::builtin_frames_per_surface()
+        ))
     }
 
     /// The scale the tile scene uses and where it came from (empty indoors).
@@ -272,7 +474,8 @@ impl SceneSource {
         match self.scene {
             Scene::Tile => {
                 let run = TileRun {
-                    frames: self.options.tile_frames,
+                    frames: self.tile_frames,
+                    survey: self.tile_survey,
                     lidar: RangeLidar {
                         points_per_frame: budget,
                         range_m: self.tile_flight.0,
@@ -338,17 +541,37 @@ impl SceneSource {
     /// The training and the test sequence at the scene's budget, checked ([`Self::check_enough`]); a
     /// user's own tile (`--las`) is announced first, with its summary and map scale.
     pub fn train_and_test(&self) -> Result<(Sequence, Sequence)> {
-        if let (Some(t), Some(_)) = (self.tile(), &self.options.tile.las) {
-            println!(
-                "{}: {}; map scale: {}",
-                self.title(),
-                t.summary(),
-                self.scale_note()
-            );
+        if let (Some(t), Some(_), false) = (self.tile(), &self.options.tile.las, self.options.quiet)
+        {
+            if self.validate.is_some() {
+                println!(
+                    "{}: {}; flight: {}{}; map scale: chosen by validation (below)",
+                    self.title(),
+                    t.summary(),
+                    self.flight_note,
+                    self.frames_note
+                );
+            } else {
+                println!(
+                    "{}: {}; map scale: {}{}",
+                    self.title(),
+                    t.summary(),
+                    self.scale_note(),
+                    self.frames_note
+                );
+            }
         }
         let train = self.sequence(self.budget(), true);
         let test = self.sequence(self.budget(), false);
         self.check_enough(&train, &test)?;
+        if self.tile.is_some()
+            && !self.options.quiet
+            && (self.options.tile.las.is_some() || self.tile_survey)
+        {
+            if let Some(line) = self.frames_per_surface(&test) {
+                println!("{line}");
+            }
+        }
         Ok((train, test))
     }
 
@@ -404,7 +627,12 @@ impl SceneSource {
     /// When the LatentBKI map (filter size `f`) left more than 20 % of the held-out tile points in voxels
     /// no integrated point reached, one line that says what to change: voxels about the size of the tile's
     /// point spacing (the kernel length kept at five voxels, the paper's ratio), or more frames.
-    pub fn coverage_hint(&self, results: &[MethodResult], f: u8) -> Option<String> {
+    pub fn coverage_hint(
+        &self,
+        results: &[MethodResult],
+        f: u8,
+        config: &MapConfig,
+    ) -> Option<String> {
         let (Scene::Tile, Some(t)) = (self.scene, &self.tile) else {
             return None;
         };
@@ -414,7 +642,7 @@ impl SceneSource {
             return None;
         }
         let spacing = (t.area() as f64 / t.points.len().max(1) as f64).sqrt();
-        let voxel = self.tile_config.voxel_size();
+        let voxel = config.voxel_size();
         let advice = if spacing > 1.5 * f64::from(voxel) {
             let v = (spacing * 20.0).round() / 20.0;
             format!(
@@ -430,11 +658,37 @@ impl SceneSource {
         ))
     }
 
-    /// The default budget of the main run.
+    /// The default budget of the main run (on a planned survey, the plan's: at most a quarter of the points
+    /// in range).
     pub fn budget(&self) -> usize {
         match self.scene {
-            Scene::Tile => self.options.tile_points,
+            Scene::Tile => self
+                .plan
+                .as_ref()
+                .map_or(self.options.tile_points, |p| p.budget),
             Scene::Indoor => self.options.indoor_pixels,
         }
     }
+}
+
+/// What [`SceneSource::tile_scale`] decides.
+struct TileScale {
+    flight: (f32, f32),
+    config: MapConfig,
+    validate: Option<u8>,
+    note: String,
+    flight_note: String,
+}
+
+/// The line for a voxel size at which the robot's map window cannot hold the sensor's range.
+fn window_error(range: f32, config: &MapConfig) -> String {
+    let voxel = config.voxel_size();
+    let window = scale::window_voxels(range, voxel, config.filter_size());
+    let max = latentbki::local_map::MAX_WINDOW_VOXELS as f32;
+    format!(
+        "the LiDAR's range ({} m) spans {window:.0} voxels of {voxel} m, and the device map's window holds at most {max:.0}: give --voxel-size {} or more, or a --range below {} m",
+        significant(range),
+        significant(scale::preferred_at_least((range + 1.0) / (0.9 * max))),
+        significant(0.9 * max * voxel),
+    )
 }

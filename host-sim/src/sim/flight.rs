@@ -9,7 +9,7 @@
 use super::sensor::RangeLidar;
 use super::tile::Tile;
 use super::trajectory::{ellipse, level_pose};
-use super::{LabelledPoint, ScanFrame, Sequence};
+use super::{mix_all, LabelledPoint, ScanFrame, Sequence};
 use latentbki::nalgebra::Isometry3;
 use latentbki::MapConfig;
 use rand_xoshiro::rand_core::SeedableRng;
@@ -61,12 +61,25 @@ impl TerrainFollowing {
             ((x - self.lo[0]) / self.cell).floor() as i32,
             ((y - self.lo[1]) / self.cell).floor() as i32,
         );
-        let near: Vec<[f32; 3]> = (-1..=1)
+        let mut near: Vec<[f32; 3]> = (-1..=1)
             .flat_map(|dx| (-1..=1).map(move |dy| (cx + dx, cy + dy)))
             .filter_map(|k| self.cells.get(&k))
             .flatten()
             .copied()
             .collect();
+        // No terrain that close (a patchy ground class): the nearest ring of cells that holds some, up to
+        // 64 cells away, so the robot flies over the ground beneath its points, not the tile's lowest.
+        let mut ring = 2;
+        while near.is_empty() && ring <= 64 && !self.cells.is_empty() {
+            near = (-ring..=ring)
+                .flat_map(|dx| (-ring..=ring).map(move |dy| (dx, dy)))
+                .filter(|&(dx, dy): &(i32, i32)| dx.abs() == ring || dy.abs() == ring)
+                .filter_map(|(dx, dy)| self.cells.get(&(cx + dx, cy + dy)))
+                .flatten()
+                .copied()
+                .collect();
+            ring += 1;
+        }
         let r2 = self.cell * self.cell;
         let mut z: Vec<f32> = near
             .iter()
@@ -111,6 +124,9 @@ pub struct TileRun {
     pub phase: f32,
     /// The map configuration the sequence asks for.
     pub config: MapConfig,
+    /// Fly laps of a survey over the cells that hold points ([`super::tile::survey`]: the robot that
+    /// revisits, planned for a user's tile) instead of the loop over the middle.
+    pub survey: bool,
 }
 
 impl Default for TileRun {
@@ -122,6 +138,7 @@ impl Default for TileRun {
             seed: 1,
             phase: 0.0,
             config: MapConfig::default(),
+            survey: false,
         }
     }
 }
@@ -169,12 +186,49 @@ fn over_the_points(tile: &Tile, cell: f32, z: f32, n: usize) -> Vec<Isometry3<f3
 /// pattern over the cells that hold points instead (`over_the_points`). The default map configuration
 /// is the paper's outdoor one (0.1 m, ℓ = 0.5 m, f = 3).
 pub fn sequence(tile: &Tile, run: &TileRun) -> Sequence {
+    let poses = sequence_poses(tile, run);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(run.seed);
+    let instances: Vec<u32> = tile.classes.iter().map(|&c| u32::from(c)).collect();
+    let frames = poses
+        .into_iter()
+        .map(|pose| {
+            let points: Vec<LabelledPoint> =
+                run.lidar
+                    .scan(&tile.points, &tile.classes, &instances, &pose, &mut rng);
+            ScanFrame { pose, points }
+        })
+        .collect();
+    Sequence {
+        name: "tile".into(),
+        classes: tile.class_names(),
+        config: run.config,
+        frames,
+        cutaway_height: None,
+    }
+}
+
+/// The poses of [`sequence`], terrain-following: the loop over the middle (or its serpentine fallback),
+/// or with [`TileRun::survey`] the laps of the revisiting survey ([`super::tile::survey::Survey`]).
+pub fn sequence_poses(tile: &Tile, run: &TileRun) -> Vec<Isometry3<f32>> {
+    let terrain = TerrainFollowing::new(tile, run.altitude);
+    let n = run.frames.max(1);
+    let lift = |mut pose: Isometry3<f32>| {
+        let t = &mut pose.translation.vector;
+        t.z = terrain.height(t.x, t.y);
+        pose
+    };
+    let z = tile.ground_height() + run.altitude;
+    if run.survey {
+        let salt = mix_all(&[u64::from(run.phase.to_bits()), 0x5C7]);
+        return super::tile::survey::Survey::new(tile, run.lidar.range_m)
+            .poses(n, salt)
+            .into_iter()
+            .map(|(p, yaw)| lift(level_pose([p[0], p[1], z], yaw)))
+            .collect();
+    }
     let (lo, hi) = tile.bounds;
     let centre = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
     let radii = [(hi[0] - lo[0]) * 0.3, (hi[1] - lo[1]) * 0.3];
-    let terrain = TerrainFollowing::new(tile, run.altitude);
-    let z = tile.ground_height() + run.altitude;
-    let n = run.frames.max(1);
     let mut loop_poses = ellipse(centre, radii, z, n * 8);
     // A pose sees points if its cell (of half the range: every point in it is within range) or a
     // neighbour holds some.
@@ -195,26 +249,9 @@ pub fn sequence(tile: &Tile, run: &TileRun) -> Sequence {
         loop_poses = over_the_points(tile, cell, z, n * 8);
     }
     let offset = (run.phase.rem_euclid(1.0) * (n * 8) as f32) as usize;
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(run.seed);
-    let instances: Vec<u32> = tile.classes.iter().map(|&c| u32::from(c)).collect();
-    let frames = (0..n)
-        .map(|i| {
-            let mut pose = loop_poses[(offset + i * 8) % loop_poses.len()];
-            let t = &mut pose.translation.vector;
-            t.z = terrain.height(t.x, t.y);
-            let points: Vec<LabelledPoint> =
-                run.lidar
-                    .scan(&tile.points, &tile.classes, &instances, &pose, &mut rng);
-            ScanFrame { pose, points }
-        })
-        .collect();
-    Sequence {
-        name: "tile".into(),
-        classes: tile.class_names(),
-        config: run.config,
-        frames,
-        cutaway_height: None,
-    }
+    (0..n)
+        .map(|i| lift(loop_poses[(offset + i * 8) % loop_poses.len()]))
+        .collect()
 }
 
 #[cfg(test)]

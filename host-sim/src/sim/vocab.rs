@@ -77,6 +77,15 @@ impl Vocabulary {
         Ok(Self { entries })
     }
 
+    /// Add `other`'s phrases that this table lacks (e.g. a feature space's `vocabulary.tsv`).
+    pub fn extend(&mut self, other: Vocabulary) {
+        for (phrase, v) in other.entries {
+            if !self.entries.iter().any(|(p, _)| *p == phrase) {
+                self.entries.push((phrase, v));
+            }
+        }
+    }
+
     /// All phrases, in file order.
     pub fn phrases(&self) -> Vec<String> {
         self.entries.iter().map(|(p, _)| p.clone()).collect()

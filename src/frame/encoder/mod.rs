@@ -117,13 +117,29 @@ pub struct TickReport {
     pub resent_bytes: usize,
 }
 
-/// Why a tick stopped early.
+/// Why a tick stopped early. Deliberately not `#[non_exhaustive]`: a tick fails only when its writer does,
+/// so with an infallible writer (`Error = Infallible`) `let Ok(report) = mapper.tick(…);` needs no error
+/// path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum TickError<E> {
     /// The writer failed; frames before it were written (see the report), the queue keeps the rest.
     Write(E, TickReport),
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for TickError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Write(e, r) => write!(
+                f,
+                "writing to the link failed ({e:?}) after {} frames ({} B); the queue keeps the rest",
+                r.frames, r.bytes
+            ),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for TickError<E> {}
 
 /// Streams voxel summaries as frames. `D`: feature dimension; `QB`: bytes of queue for evicted voxels;
 /// `N`: largest frame on the wire (bytes, delimiters included).
@@ -158,6 +174,13 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     now: u32,
     /// Bytes written again, wrapping.
     resent_bytes: u32,
+    /// The frame in `scratch` whose write has not succeeded yet (`scheduler::PENDING_*`; 0: none), its wire
+    /// length, the queue entries it carries and its live summaries. Plain fields, so that [`Self::EMPTY`]
+    /// stays all zero.
+    pending_kind: u8,
+    pending_len: usize,
+    pending_from_queue: usize,
+    pending_live: u32,
 }
 
 mod packer;
@@ -229,6 +252,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         resend_len: 0,
         now: 0,
         resent_bytes: 0,
+        pending_kind: scheduler::PENDING_NONE,
+        pending_len: 0,
+        pending_from_queue: 0,
+        pending_live: 0,
     };
 
     /// An encoder for one session. Fails if the configuration is invalid for D, if the queue cannot hold
@@ -263,6 +290,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.resend_len = 0;
         self.now = 0;
         self.resent_bytes = 0;
+        self.drop_pending();
         config.validate(D)?;
         let resend = settings.resend.bytes as usize;
         if settings.resend.is_on() && (resend > QB || resend < N + 11) {
@@ -310,6 +338,14 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         self.entry_len = 0;
         self.capacity = 0;
         self.ring = Ring::EMPTY;
+        self.drop_pending();
+    }
+
+    pub(super) fn drop_pending(&mut self) {
+        self.pending_kind = scheduler::PENDING_NONE;
+        self.pending_len = 0;
+        self.pending_from_queue = 0;
+        self.pending_live = 0;
     }
 
     /// Whether a session is configured.

@@ -45,7 +45,8 @@ pub struct ViewArgs {
     /// before a positional argument.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_ADDR)]
     pub view: Option<std::net::SocketAddr>,
-    /// Record the view's topics to this MCAP file (Foxglove, Lichtblick, `ros2 bag`, PyPI `mcap` read it).
+    /// Record the view's topics to this MCAP file (Foxglove's protobuf schemas: Foxglove, Lichtblick and PyPI
+    /// `mcap` read it; not a ROS 2 bag: `ros2 bag play` cannot publish its messages).
     #[arg(long, value_name = "FILE.mcap")]
     pub record: Option<PathBuf>,
     /// At most this many view updates a second (changed voxels are coalesced in between).
@@ -94,11 +95,12 @@ pub struct OutputArgs {
     /// Text query for the heatmap (a phrase of the built-in table).
     #[arg(long)]
     pub(super) query: Option<String>,
-    /// Write top-down PNGs `<prefix>-labels.png`, `-heat.png`, `-uncertainty.png`, `-gain.png` (information
-    /// gain: where to look next).
+    /// Write top-down pictures, titled, with a legend or colour bar and a scale bar, sized to the map:
+    /// `<prefix>-labels.png` (with --pca), `-heat.png` (with --query), `-uncertainty.png`, and `-gain.png`
+    /// (information gain: where to look next; raw, --scale pixels per voxel). The folder is created.
     #[arg(long)]
     pub(super) png: Option<PathBuf>,
-    /// Pixels per voxel in the PNGs (1..=16384; the image is at most 16384 pixels per side).
+    /// Pixels per voxel of `-gain.png` (1..=16384; the image is at most 16384 pixels per side).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_SIDE)))]
     pub(super) scale: u32,
     /// Write the map as an ASCII PLY point cloud.

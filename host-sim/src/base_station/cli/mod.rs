@@ -9,12 +9,13 @@
 //! The options are in `args`, the reading of the user's vocabulary (`--pca`, `--classes`, `--query`) in
 //! `vocabulary`, the byte pump in `receive`.
 
-use super::export::{write_ply, write_pngs};
+use super::export::write_ply;
 use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
 use super::view::Viewer;
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 
 mod args;
+mod pictures;
 mod receive;
 mod view;
 mod vocabulary;
@@ -58,13 +59,18 @@ fn check_output(flag: &str, path: &Path, is_prefix: bool) -> Result<()> {
     Ok(())
 }
 
-/// Check the output options before anything is read.
+/// Check the output options before anything is read. Their folders are created when they are written
+/// (a folder that is a file, or an output that is a folder, is refused here).
 fn check_outputs(out: &OutputArgs) -> Result<()> {
+    let check = |flag: &str, p: &Path, is_prefix: bool| match p.parent() {
+        Some(f) if !f.as_os_str().is_empty() && !f.exists() => Ok(()),
+        _ => check_output(flag, p, is_prefix),
+    };
     if let Some(p) = &out.png {
-        check_output("--png", p, true)?;
+        check("--png", p, true)?;
     }
     if let Some(p) = &out.ply {
-        check_output("--ply", p, false)?;
+        check("--ply", p, false)?;
     }
     Ok(())
 }
@@ -127,11 +133,16 @@ fn show(
         Codebook::<DIM, VOCAB_CAP>::from_embeddings(&[]).expect("an empty codebook is valid");
     let cb = vocab.map_or(&empty, |v| &v.1);
     if let Some(prefix) = &out.png {
-        for f in write_pngs(map, cb, query.map(|q| (q, 0)), prefix, out.scale)? {
+        let query = query.zip(out.query.as_deref());
+        for f in pictures::write(map, vocab, query, prefix, out.scale)? {
             println!("wrote {}", f.display());
         }
     }
     if let Some(p) = &out.ply {
+        if let Some(folder) = p.parent().filter(|f| !f.as_os_str().is_empty()) {
+            std::fs::create_dir_all(folder)
+                .with_context(|| format!("--ply: creating the folder {}", folder.display()))?;
+        }
         write_ply(map, cb, p)?;
         println!("wrote {}", p.display());
     }

@@ -27,7 +27,7 @@ pub(super) fn read_vocabulary(
         return Ok((None, None));
     };
     let pca = read_pca(p)?;
-    let table = crate::sim::vocab::Vocabulary::builtin();
+    let table = read_table(p)?;
     let names: Vec<String> = match &args.classes {
         Some(c) => c.split(',').map(|s| s.trim().to_string()).collect(),
         None => table.phrases().into_iter().take(12).collect(),
@@ -50,6 +50,21 @@ pub(super) fn read_vocabulary(
         None => None,
     };
     Ok((Some((names, cb, pca)), query))
+}
+
+/// The phrases words are looked up in: the committed table, plus the classes of a feature space written by
+/// `host-sim feature-space` (its `vocabulary.tsv`, beside the `--pca` file), which may be words the
+/// committed table lacks.
+fn read_table(pca: &Path) -> Result<crate::sim::vocab::Vocabulary> {
+    let mut table = crate::sim::vocab::Vocabulary::builtin();
+    let beside = pca.with_file_name("vocabulary.tsv");
+    if beside.is_file() {
+        let text = std::fs::read_to_string(&beside)?;
+        let extra = crate::sim::vocab::Vocabulary::parse(&text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", beside.display()))?;
+        table.extend(extra);
+    }
+    Ok(table)
 }
 
 /// The PCA must be the robots' (the map's feature-space id) or the labels would be meaningless.

@@ -11,7 +11,9 @@ use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+mod calibrate;
 mod query;
+pub use calibrate::{calibrate, config_const, device_needs, CalibrateArgs, DeviceNeeds};
 pub use query::query;
 
 /// Which scenes `eval` runs.
@@ -62,9 +64,10 @@ pub struct EvalArgs {
     /// Seed of the run.
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
-    /// Frames on the tile loop.
-    #[arg(long, default_value_t = 60)]
-    pub frames: usize,
+    /// Frames flown over the tile [default: 60 on the loop; on the survey (--las), planned from the tile so
+    /// that each surface is observed by about as many frames as on the built-in tile].
+    #[arg(long)]
+    pub frames: Option<usize>,
     /// LiDAR points per frame on the tile.
     #[arg(long, default_value_t = 3000)]
     pub points: usize,
@@ -156,19 +159,42 @@ fn print_report(r: &Report) {
     }
 }
 
-/// The map configuration `demo` will run with: the given one, or with `--las` the one chosen from the
-/// file's point spacing (the base station's link must be set up with the robot's configuration).
+/// The map configuration `demo` will run with: the given one, or with `--las` the one chosen by validation
+/// (or from the file's point spacing with `--scale spacing`): the base station's link must be set up with
+/// the robot's configuration before the run. The choice is remembered, so the run does not repeat it.
 pub fn demo_config(args: &DemoArgs) -> Result<latentbki::MapConfig> {
-    if args.tile.las.is_none() {
+    if args.tile.las.is_none() && args.tile.scale.is_none() {
         return args.map.config();
     }
     let options = SceneOptions {
+        quiet: true,
+        ..demo_options(args)?
+    };
+    let mut source = SceneSource::new(Scene::Tile, &options, args.seed)?;
+    if source.validates_scale().is_none() {
+        return Ok(source.config());
+    }
+    let setup = demo_setup(args);
+    let (train, test) = source.train_and_test()?;
+    let dec = super::experiment::decoding(&Vocabulary::builtin(), &train, &setup)?;
+    let frames = super::experiment::encode(&test, &dec, &setup);
+    Ok(source.resolve_config(&frames, &dec, &setup)?.0)
+}
+
+fn demo_setup(args: &DemoArgs) -> Setup {
+    Setup {
+        seed: args.seed,
+        ..Setup::default()
+    }
+}
+
+fn demo_options(args: &DemoArgs) -> Result<SceneOptions> {
+    Ok(SceneOptions {
         tile: args.tile.clone(),
         tile_config: args.map.config()?,
-        tile_map: Some(args.map.clone()),
+        tile_map: args.tile.las.as_ref().map(|_| args.map.clone()),
         ..SceneOptions::default()
-    };
-    Ok(SceneSource::new(Scene::Tile, &options, args.seed)?.config())
+    })
 }
 
 /// `demo`: the real tile, default configuration, the on-device map, the table and the pictures.
@@ -177,16 +203,8 @@ pub fn demo_config(args: &DemoArgs) -> Result<latentbki::MapConfig> {
 /// (its methods' maps, e.g. the f32 reference the radio compares the base station with).
 pub fn demo(args: &DemoArgs, link: Option<Box<dyn Radio>>) -> Result<scenes::Report> {
     let start = Instant::now();
-    let setup = Setup {
-        seed: args.seed,
-        ..Setup::default()
-    };
-    let options = SceneOptions {
-        tile: args.tile.clone(),
-        tile_config: args.map.config()?,
-        tile_map: args.tile.las.as_ref().map(|_| args.map.clone()),
-        ..SceneOptions::default()
-    };
+    let setup = demo_setup(args);
+    let options = demo_options(args)?;
     match &args.tile.las {
         None => println!("LatentBKI demo: a robot maps the real labelled LiDAR tile (ASPRS classes) with a simulated vision-language network."),
         Some(p) => println!("LatentBKI demo: a robot maps {} (ASPRS classes) with a simulated vision-language network.", p.display()),
@@ -204,7 +222,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     let start = Instant::now();
     // The PCA fits D components on the training sequence's features: it needs more than D of them.
     let pca_min = D + 1;
-    ensure!(args.frames >= 1, "--frames must be at least 1");
+    ensure!(args.frames != Some(0), "--frames must be at least 1");
     ensure!(args.points >= 1, "--points must be at least 1");
     ensure!(args.pixels >= 1, "--pixels must be at least 1");
     let scene = args.scene();
@@ -225,11 +243,11 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             "the map options (--voxel-size …) apply to the tile scene; --scene indoor uses the paper's indoor configuration"
         );
     }
-    if scene != SceneArg::Indoor {
+    if let (true, Some(frames)) = (scene != SceneArg::Indoor, args.frames) {
         ensure!(
-            args.frames.saturating_mul(args.points) >= pca_min,
+            frames.saturating_mul(args.points) >= pca_min,
             "--frames × --points is {} × {}: the tile needs at least {pca_min} points in all to fit the {D}-component PCA",
-            args.frames,
+            frames,
             args.points
         );
     }
@@ -256,7 +274,8 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("--out: cannot create the folder {}", args.out.display()))?;
     let options = SceneOptions {
-        tile_frames: args.frames,
+        tile_frames: args.frames.unwrap_or(SceneOptions::default().tile_frames),
+        plan_frames: args.frames.is_none(),
         tile_points: args.points,
         indoor_pixels: args.pixels,
         layout_seed: args.layout_seed,
@@ -294,7 +313,7 @@ mod tests {
             scene: Some(SceneArg::Tile),
             out: out.to_owned(),
             seed: 7,
-            frames: 2,
+            frames: Some(2),
             points: 100,
             pixels: 100,
             layout_seed: 1,
@@ -319,12 +338,12 @@ mod tests {
             eval(&args).unwrap_err().to_string()
         };
         // `--frames 0` ran one frame; `--points 0|1`, `--pixels 0` failed deep inside the PCA.
-        assert_eq!(err(|a| a.frames = 0), "--frames must be at least 1");
+        assert_eq!(err(|a| a.frames = Some(0)), "--frames must be at least 1");
         assert_eq!(err(|a| a.points = 0), "--points must be at least 1");
         assert_eq!(err(|a| a.pixels = 0), "--pixels must be at least 1");
         let e = err(|a| {
             a.points = 1;
-            a.frames = 60;
+            a.frames = Some(60);
         });
         assert!(
             e.contains("60 × 1") && e.contains("at least 65 points"),

@@ -26,6 +26,7 @@
 //! module turns them into a [`Tile`] in metres with classes and a summary.
 
 mod las_points;
+pub mod survey;
 
 pub use super::asprs::{asprs_phrase, asprs_phrases, class_phrase};
 pub use super::flight::{sequence, TerrainFollowing, TileRun};
