@@ -578,6 +578,36 @@ fn every_name_of_the_protocol_is_accepted_and_unknown_ones_refused() {
     station.finish();
 }
 
+/// A PCA of another feature space than the robots' decodes nothing in the view, and its legend says why
+/// (the classes would be meaningless); the base station refuses it at the end as `map-query` does.
+#[test]
+fn a_pca_of_another_feature_space_decodes_nothing_and_the_legend_says_why() {
+    if !mcap_ready() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut other = World::new(SummaryCodec::DEFAULT).pca;
+    other.mean[0] += 0.5;
+    let pca = dir.path().join("other.npz");
+    host_sim::npy_io::write_pca_npz(&pca, &other).unwrap();
+    let rec = dir.path().join("rec.mcap");
+    let db = dir.path().join("map.db");
+    let mut station = start_station(&db, &pca, &["--record".as_ref(), rec.as_os_str()]);
+    station.feed(&robot_stream(3, 4));
+    drop(station.stdin.take());
+    let mut rest = String::new();
+    station.stdout.read_to_string(&mut rest).unwrap();
+    assert!(!station.child.wait().unwrap().success(), "{rest}");
+    let out = python_check(&["--legend".as_ref(), rec.as_os_str()]);
+    println!("{out}");
+    assert!(
+        out.contains("\"error\": \"the PCA's feature space") && out.contains("is not the robots'"),
+        "{out}"
+    );
+    // Every cube grey (unclassified): nothing decoded with the wrong PCA.
+    assert!(out.trim().ends_with("\"colours\": [\"#808080\"]}"), "{out}");
+}
+
 /// `demo --view --record`: the final map in colour to clients offering only the classic protocol name,
 /// served after the run until SIGINT, and a recording that seeks.
 #[test]

@@ -1,5 +1,5 @@
 //! What `cargo test` printed, summed over every test binary: the totals, and how each QEMU firmware test
-//! ended (named by the `_firmware_in_qemu_` in their names, host-sim/tests/firmware_qemu.rs), so the last
+//! ended (named by the `_firmware_in_qemu_` in their names, boards/firmware-tests/tests/firmware_qemu.rs), so the last
 //! lines of a long run say whether the firmware really ran.
 
 /// A test's name marks it as one that runs a firmware under QEMU.
@@ -47,7 +47,7 @@ impl Summary {
         if self.firmware.is_empty() {
             s += "QEMU firmware tests: none ran (not selected by the arguments)\n";
         } else {
-            s += "QEMU firmware tests (host-sim/tests/firmware_qemu.rs: each board's firmware run in QEMU, its \
+            s += "QEMU firmware tests (boards/firmware-tests/tests/firmware_qemu.rs: each board's firmware run in QEMU, its \
                   UART stream checked byte for byte against the host twin):\n";
             for (name, outcome) in &self.firmware {
                 s += &format!("  {outcome:<8} {name}\n");

@@ -61,12 +61,25 @@ impl TerrainFollowing {
             ((x - self.lo[0]) / self.cell).floor() as i32,
             ((y - self.lo[1]) / self.cell).floor() as i32,
         );
-        let near: Vec<[f32; 3]> = (-1..=1)
+        let mut near: Vec<[f32; 3]> = (-1..=1)
             .flat_map(|dx| (-1..=1).map(move |dy| (cx + dx, cy + dy)))
             .filter_map(|k| self.cells.get(&k))
             .flatten()
             .copied()
             .collect();
+        // No terrain that close (a patchy ground class): the nearest ring of cells that holds some, up to
+        // 64 cells away, so the robot flies over the ground beneath its points, not the tile's lowest.
+        let mut ring = 2;
+        while near.is_empty() && ring <= 64 && !self.cells.is_empty() {
+            near = (-ring..=ring)
+                .flat_map(|dx| (-ring..=ring).map(move |dy| (dx, dy)))
+                .filter(|&(dx, dy): &(i32, i32)| dx.abs() == ring || dy.abs() == ring)
+                .filter_map(|(dx, dy)| self.cells.get(&(cx + dx, cy + dy)))
+                .flatten()
+                .copied()
+                .collect();
+            ring += 1;
+        }
         let r2 = self.cell * self.cell;
         let mut z: Vec<f32> = near
             .iter()

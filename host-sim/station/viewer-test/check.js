@@ -16,7 +16,8 @@
 //      layer shows as many distinct colours as classes that have voxels;
 //   3. after it sets the `query` parameter to the phrase, the heat layer is re-sent whole with a score for
 //      every voxel (given `top_keys`: its top voxels are the ones `map-query --query` ranks top);
-//   4. the centre frame (`/tf`, map → map_centre) has arrived.
+//   4. the centre frame (`/tf`, map → map_centre) has arrived, and the heat cloud (`/map/heat_cloud`) holds
+//      every voxel with a score after the phrase.
 // Exit 0 with one line "viewer-check NAME: ok ..." or 1 with what differs.
 "use strict";
 const fs = require("fs");
@@ -44,6 +45,7 @@ const layers = new Map(); // topic -> Map(entity id -> {keys, values})
 let legend = null;
 let status = null;
 let centre = null;
+let cloud = null; // the heat cloud: {points, scored, afterPhrase}
 let phraseSentAt = 0;
 let heatAfterPhraseMs = null;
 let heatFullsAfterPhrase = 0;
@@ -183,6 +185,15 @@ client.on("message", ({ subscriptionId, data }) => {
   if (topic === "/map/legend") legend = msg;
   else if (topic === "/link/status") status = msg;
   else if (topic === "/tf") centre = msg.transforms.find((t) => t.childFrameId === "map_centre") || centre;
+  else if (topic === "/map/heat_cloud") {
+    const view = new DataView(msg.data.buffer, msg.data.byteOffset, msg.data.byteLength);
+    const points = msg.data.byteLength / msg.pointStride;
+    const at = msg.fields.find((f) => f.name === "score").offset;
+    let scored = 0;
+    for (let i = 0; i < points; i++) scored += Number.isNaN(view.getFloat32(i * msg.pointStride + at, true)) ? 0 : 1;
+    const afterMs = phraseSent ? (cloud && cloud.afterMs != null ? cloud.afterMs : Date.now() - phraseSentAt) : null;
+    cloud = { points, scored, afterPhrase: phraseSent, afterMs };
+  }
   else applySceneUpdate(topic, msg);
 });
 
@@ -228,6 +239,10 @@ const tick = setInterval(() => {
     lastProblem = "no centre frame on /tf";
     return;
   }
+  if (!cloud || !cloud.afterPhrase || cloud.points !== expect.count || cloud.scored !== expect.count) {
+    lastProblem = `heat cloud ${JSON.stringify(cloud)}, expected ${expect.count} scored points after the phrase`;
+    return;
+  }
   if (!status || typeof status.frames !== "number") {
     lastProblem = "no link status";
     return;
@@ -238,7 +253,8 @@ const tick = setInterval(() => {
     `viewer-check ${name}: ok over ${ws.protocol}: ${expect.count} voxels` +
       (expect.classes ? " and their classes equal map-info/map-query" : "") +
       `; ${distinctColours} distinct class colours for ${classesWithVoxels} classes with voxels, legend names ${legend.classes.length} (${names}); ` +
-      `heat for "${expect.phrase}" re-sent whole ${heatAfterPhraseMs} ms after the phrase was set` +
+      `heat for "${expect.phrase}" re-sent whole ${heatAfterPhraseMs} ms after the phrase was set ` +
+      `(as a point cloud: ${cloud.afterMs} ms)` +
       (expect.top_keys ? `, top ${expect.top_keys.length} equal map-query --query` : "") +
       `; ${messages} messages; link frames ${status.frames}`,
   );

@@ -3,6 +3,7 @@ check it against `map-info` / `map-query`, as check.js does for the live view; o
 
 Usage: python3 check_mcap.py FILE.mcap expect.json
        python3 check_mcap.py --seek FILE.mcap
+       python3 check_mcap.py --legend FILE.mcap   (prints the last legend and the last scene's colours, JSON)
 
 `--seek`: at every time a message was logged, a reader that seeks there (the file's index, newest message
 of each topic at or before that time, read backwards: what Foxglove and Lichtblick show after a seek)
@@ -57,8 +58,12 @@ def seek(path):
     problems = []
     with open(path, "rb") as f:
         reader = make_reader(f)
-        topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
-        scene_topics = sorted(t for t in topics.values() if t.startswith("/map/") and t != "/map/legend")
+        summary = reader.get_summary()
+        scene_topics = sorted(
+            c.topic
+            for c in summary.channels.values()
+            if summary.schemas[c.schema_id].name == "foxglove.SceneUpdate"
+        )
         messages = list(reader.iter_messages(log_time_order=True))
         times = sorted({m.log_time for _, _, m in messages})
         legend_at = {}
@@ -94,12 +99,24 @@ def seek(path):
                         f"read from the start {voxel_count(layers.get(topic, {}))}"
                     )
                     break
+            # The heat cloud a seek finds holds the heat layer's voxels.
+            back = next(reader.iter_messages(topics=["/map/heat_cloud"], ending_at=t, reverse=True), None)
+            if back is not None and "/map/heat" in layers:
+                schema, channel, message = back
+                if channel.id not in decoders:
+                    decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                cloud = decoders[channel.id](message.data)
+                points = len(cloud.data) // cloud.point_stride
+                if points != voxel_count(layers["/map/heat"]):
+                    problems.append(
+                        f"at {t}: the heat cloud holds {points} points, the heat layer {voxel_count(layers['/map/heat'])} voxels"
+                    )
             classes = layers.get("/map/classes", {})
-            if legend is None or "unclassified" not in legend:
+            if legend is None or "undecoded" not in legend:
                 if classes:
                     problems.append(f"at {t}: no legend counting the scene's voxels")
             elif classes:
-                counted = sum(c["voxels"] for c in legend["classes"]) + legend["unclassified"]["voxels"]
+                counted = sum(c["voxels"] for c in legend["classes"]) + legend["undecoded"]["voxels"]
                 if counted != voxel_count(classes):
                     problems.append(
                         f"at {t}: the scene holds {voxel_count(classes)} voxels, the legend counts {counted}"
@@ -156,8 +173,8 @@ def main(path, expect_path):
                 elif channel.topic == "/link/status":
                     status = msg
                 continue
-            if not channel.topic.startswith("/map/"):
-                continue  # the centre frame (/tf)
+            if schema.name != "foxglove.SceneUpdate":
+                continue  # the centre frame (/tf), the heat cloud
             if channel.id not in decoders:
                 decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
             apply(layers.setdefault(channel.topic, {}), decoders[channel.id](message.data))
@@ -201,7 +218,23 @@ def main(path, expect_path):
     return 0
 
 
+def last_legend(path):
+    factory = DecoderFactory()
+    legend, classes = None, None
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            if channel.topic == "/map/legend":
+                legend = json.loads(message.data)
+            elif channel.topic == "/map/classes":
+                classes = apply({}, factory.decoder_for(channel.message_encoding, schema)(message.data))
+    colours = sorted({"#%02x%02x%02x" % c for _, _, cs in (classes or {}).values() for c in cs})
+    print(json.dumps({"legend": legend, "colours": colours}))
+    return 0
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "--seek":
         sys.exit(seek(sys.argv[2]))
+    if sys.argv[1] == "--legend":
+        sys.exit(last_legend(sys.argv[2]))
     sys.exit(main(sys.argv[1], sys.argv[2]))

@@ -47,6 +47,7 @@ pub fn vocabulary(
     Vocabulary {
         names,
         codebook,
+        feature_space: Some(latentbki::wire::feature_space_id(&*pca)),
         phrases: Some(phrase_encoder(pca)),
     }
 }

@@ -25,7 +25,7 @@ use crate::sim::flight::{sequence_poses, TileRun};
 use crate::sim::sensor::RangeLidar;
 use crate::sim::{mix_all, unit};
 use latentbki::nalgebra::Isometry3;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::sync::OnceLock;
 
 /// The most laps a plan flies (a tile whose points cannot be reached by the sensor would add laps forever).
@@ -38,6 +38,8 @@ pub struct Survey {
     cell: f32,
     lo: [f32; 2],
     cells: Vec<(i32, i32)>,
+    /// The centroid (x, y) of each cell's points: a pose flies over the points, not over an empty corner.
+    centroids: HashMap<(i32, i32), [f32; 2]>,
 }
 
 impl Survey {
@@ -45,19 +47,29 @@ impl Survey {
     pub fn new(tile: &Tile, range: f32) -> Self {
         let cell = range.max(1e-3);
         let lo = [tile.bounds.0[0], tile.bounds.0[1]];
-        let set: HashSet<(i32, i32)> = tile
-            .points
-            .iter()
-            .map(|p| {
-                (
-                    ((p[0] - lo[0]) / cell).floor() as i32,
-                    ((p[1] - lo[1]) / cell).floor() as i32,
-                )
-            })
-            .collect();
-        let mut cells: Vec<(i32, i32)> = set.into_iter().collect();
+        let mut sums: HashMap<(i32, i32), [f64; 3]> = HashMap::new();
+        for p in &tile.points {
+            let k = (
+                ((p[0] - lo[0]) / cell).floor() as i32,
+                ((p[1] - lo[1]) / cell).floor() as i32,
+            );
+            let s = sums.entry(k).or_insert([0.0; 3]);
+            s[0] += f64::from(p[0]);
+            s[1] += f64::from(p[1]);
+            s[2] += 1.0;
+        }
+        let mut cells: Vec<(i32, i32)> = sums.keys().copied().collect();
         cells.sort_unstable();
-        Self { cell, lo, cells }
+        let centroids = sums
+            .into_iter()
+            .map(|(k, s)| (k, [(s[0] / s[2]) as f32, (s[1] / s[2]) as f32]))
+            .collect();
+        Self {
+            cell,
+            lo,
+            cells,
+            centroids,
+        }
     }
 
     /// Frames in one lap (one per cell that holds points).
@@ -89,10 +101,11 @@ impl Survey {
                 let h = mix_all(&[salt, lap as u64, cx as u64, cy as u64]);
                 let jx = (unit(mix_all(&[h, 1])) - 0.5) * 0.5;
                 let jy = (unit(mix_all(&[h, 2])) - 0.5) * 0.5;
-                [
-                    self.lo[0] + (cx as f32 + 0.5 + jx) * self.cell,
-                    self.lo[1] + (cy as f32 + 0.5 + jy) * self.cell,
-                ]
+                let c = self.centroids.get(&(cx, cy)).copied().unwrap_or([
+                    self.lo[0] + (cx as f32 + 0.5) * self.cell,
+                    self.lo[1] + (cy as f32 + 0.5) * self.cell,
+                ]);
+                [c[0] + jx * self.cell, c[1] + jy * self.cell]
             };
             for k in 0..m.min(frames - out.len()) {
                 let p = at(k);
@@ -237,7 +250,8 @@ impl Plan {
 /// The revisiting flight over `tile` for a run like `run` (its sensor and altitude): laps are added until
 /// the median frames per surface point reaches `target` (or [`MAX_LAPS`]).
 ///
-/// A frame keeps at most a quarter of the points within its range (the median over a lap's poses): the
+/// A frame keeps at most a quarter of the points within its range (of the frame that sees the median
+/// surface point on a lap): the
 /// range rule ([`crate::sim::scale::scaled_sensor`]) sizes the sensor so that its sphere holds four frames'
 /// budget, and a tile smaller than that sphere (a few hundred points, or a small site under the 10 m
 /// floor) would otherwise be returned whole by every frame, its frames per surface reached in a handful of
@@ -253,11 +267,24 @@ pub fn plan(tile: &Tile, run: &TileRun, target: f32) -> Plan {
             ..*run
         },
     );
-    let mut visible = Vec::with_capacity(m);
+    let mut visible: Vec<usize> = Vec::with_capacity(m);
     for_points_in_range(tile, &lap, run.lidar.range_m, |seen| {
-        visible.push(seen.len() as f32)
+        visible.push(seen.len())
     });
-    let quarter = (median(&visible) / 4.0).ceil().max(1.0) as usize;
+    // The points in range of the frame that sees the median surface point (a median weighted by points:
+    // on a clustered tile most returns come from the frames over the dense clusters).
+    visible.sort_unstable();
+    let total: usize = visible.iter().sum();
+    let mut acc = 0;
+    let typical = visible
+        .iter()
+        .find(|&&v| {
+            acc += v;
+            2 * acc >= total
+        })
+        .copied()
+        .unwrap_or(0);
+    let quarter = typical.div_ceil(4).max(1);
     let budget = run.lidar.points_per_frame.min(quarter);
     let run = &TileRun {
         lidar: RangeLidar {

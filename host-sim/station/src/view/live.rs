@@ -72,6 +72,7 @@ impl<const D: usize, const K: usize> Viewer<D, K> {
             recording,
             interval: Duration::from_secs_f64(1.0 / options.rate_hz.clamp(0.01, 1000.0)),
             vocabulary: None,
+            mismatch: None,
             map: None,
             scene: None,
             query: None,
@@ -81,6 +82,7 @@ impl<const D: usize, const K: usize> Viewer<D, K> {
             last_status: None,
             last_legend: None,
             last_frame: None,
+            cloud: (None, false),
             refused_at_start: guard::refused(),
         };
         if let Some(v) = options.vocabulary {

@@ -15,7 +15,7 @@
 //! [`Layer::Uncertainty`] `/map/uncertainty`, [`Layer::Robots`] `/map/robots` (`foxglove.SceneUpdate`,
 //! protobuf); [`LEGEND_TOPIC`] (each class's name, colour and voxels; the phrase in force) and
 //! [`STATUS_TOPIC`] (the link's counters and the viewer's own), JSON; [`FRAME_TOPIC`], the map's centre as a
-//! frame a 3D panel follows. Classes take their natural colours where they have one (ground brown,
+//! frame a 3D panel follows; [`HEAT_CLOUD_TOPIC`], the heat once more as one point cloud that repaints fast. Classes take their natural colours where they have one (ground brown,
 //! vegetation green, …: `export::class_colour`, the demo's figures' table), else a palette by index. The
 //! map decodes once a [`Vocabulary`] is known — at the start (`--pca`) or later
 //! ([`Viewer::set_vocabulary`]: the demo learns its robot's feature space after the view has started);
@@ -34,6 +34,7 @@
 //! map). Each client has its own bounded queue in the SDK (`backlog` messages; the oldest are dropped
 //! when a client does not read), so a stalled client costs bounded memory and nothing else.
 
+mod cloud;
 pub mod front;
 pub mod guard;
 mod live;
@@ -42,6 +43,7 @@ pub mod scene;
 mod shared;
 mod worker;
 
+pub use cloud::{heat_cloud, HEAT_CLOUD_TOPIC};
 /// The Foxglove SDK the view is built on (its message types, for callers of [`Scene`]).
 pub use foxglove;
 pub use live::Viewer;
@@ -78,6 +80,9 @@ pub struct Vocabulary<const D: usize, const K: usize> {
     pub codebook: Codebook<D, K>,
     /// Encodes the phrases clients set (None: the heat layer stays empty).
     pub phrases: Option<PhraseEncoder<D, K>>,
+    /// The feature-space id of the PCA behind the codebook: a map whose robots declared another one is
+    /// not decoded with it (its classes would be meaningless); the legend says why. None: not checked.
+    pub feature_space: Option<u32>,
 }
 
 /// How the view runs.

@@ -7,13 +7,14 @@
 //! of each topic at any time is then the whole scene as the recording had it, and a reader that seeks
 //! sees exactly what one that read from the start sees. The file begins with the first scene that holds
 //! voxels (never an empty panel at the start), and [`FRAME_TOPIC`](super::FRAME_TOPIC), the legend and the
-//! link status ride along with each snapshot.
+//! link status ride along with each snapshot, the heat cloud with each heat layer.
 //!
 //! Cost: a layer is written whole at most every [`MIN_INTERVAL`], and the interval stretches so that the
 //! snapshots' payload stays under [`BYTES_PER_SECOND`] (a 100k-voxel map's four layers, ≈ 48 MB, go at
 //! most every 6 s). Only layers that changed since their last snapshot are written. Chunks are LZ4
 //! compressed (the cubes' repeated sizes, orientations and colours shrink ≈ 9×).
 
+use super::cloud::heat_cloud_bytes;
 use super::scene::{Layer, Scene};
 use super::shared::{Channels, RecordingSummary};
 use super::ViewError;
@@ -119,6 +120,11 @@ impl Recording {
                 let buf = scene.full_bytes(layer, time);
                 bytes += buf.len();
                 self.write(&self.channels.layer(layer).clone(), &buf, at);
+                if layer == Layer::Heat {
+                    let cloud = heat_cloud_bytes(scene, time);
+                    bytes += cloud.len();
+                    self.write(&self.channels.heat_cloud.clone(), &cloud, at);
+                }
             }
         }
         if let Some(l) = self.legend.take() {

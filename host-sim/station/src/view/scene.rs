@@ -184,6 +184,14 @@ impl<const D: usize, const K: usize> Scene<D, K> {
     pub fn row(&self, k: &VoxelKey) -> Option<&VoxelRow<D>> {
         self.rows.get(k)
     }
+    /// The observed voxels and their rows, block by block.
+    pub fn voxels(&self) -> impl Iterator<Item = (&VoxelKey, &VoxelRow<D>)> {
+        self.blocks.values().flatten().map(|k| (k, &self.rows[k]))
+    }
+    /// Voxel side, metres.
+    pub fn voxel_size(&self) -> f32 {
+        self.voxel_size
+    }
     /// Blocks holding at least one voxel.
     pub fn blocks(&self) -> impl Iterator<Item = &BlockKey> {
         self.blocks.keys()
@@ -331,7 +339,8 @@ impl<const D: usize, const K: usize> Scene<D, K> {
         self.encoded[Layer::Uncertainty as usize].clear();
     }
 
-    fn colour(&self, layer: Layer, row: &VoxelRow<D>) -> [u8; 3] {
+    /// The colour a layer paints a voxel.
+    pub fn colour(&self, layer: Layer, row: &VoxelRow<D>) -> [u8; 3] {
         match layer {
             Layer::Classes => row.class.map_or(UNDEFINED, |(c, _)| self.class_colour(c)),
             Layer::Heat => row.heat.map_or(UNDEFINED, |s| ramp(self.heat_range.t(s))),

@@ -166,3 +166,28 @@ fn the_centre_ignores_a_stray_voxel_and_classes_take_their_palette() {
     );
     assert_eq!(scene.class_counts(2), vec![41, 0]);
 }
+
+#[test]
+fn the_heat_cloud_holds_every_voxel_with_the_heat_layers_colour_and_score() {
+    let mut m = map();
+    for (x, v) in [(0, 0.9), (9, 0.1), (30, 0.5)] {
+        observe(&mut m, 1, VoxelKey::new(x, 0, 0), v);
+    }
+    let cb = vocab();
+    let mut scene = Scene::<D, 4>::new(m.map_config().voxel_size());
+    scene.update(&m, &m.sorted_keys(), Some(&cb), None);
+    let cloud = crate::view::cloud::heat_cloud(&scene, Timestamp::new(1, 0));
+    assert_eq!(cloud.data.len(), 3 * cloud.point_stride as usize);
+    // Without a query: NaN scores, the undefined grey.
+    assert!(f32::from_le_bytes(cloud.data[16..20].try_into().unwrap()).is_nan());
+    assert_eq!(&cloud.data[12..16], &[128, 128, 128, 255]);
+    scene.set_query(Some(&cb));
+    let cloud = crate::view::cloud::heat_cloud(&scene, Timestamp::new(2, 0));
+    let stride = cloud.point_stride as usize;
+    for ((k, row), p) in scene.voxels().zip(cloud.data.chunks_exact(stride)) {
+        let f = |o: usize| f32::from_le_bytes(p[o..o + 4].try_into().unwrap());
+        assert_eq!([f(0), f(4), f(8)], k.centroid(scene.voxel_size()));
+        assert_eq!(&p[12..15], &scene.colour(Layer::Heat, row));
+        assert_eq!(f(16), row.heat.unwrap());
+    }
+}

@@ -115,6 +115,7 @@ pub(super) struct Channels {
     pub(super) legend: Arc<RawChannel>,
     pub(super) status: Arc<RawChannel>,
     pub(super) frame: Arc<RawChannel>,
+    pub(super) heat_cloud: Arc<RawChannel>,
 }
 
 fn json_channel(ctx: &Arc<Context>, topic: &str, name: &str) -> Arc<RawChannel> {
@@ -140,7 +141,7 @@ fn protobuf_channel<T: foxglove::Encode>(ctx: &Arc<Context>, topic: &str) -> Arc
 impl Channels {
     /// Every topic of the view, in `ctx`.
     pub(super) fn new(ctx: &Arc<Context>) -> Self {
-        use foxglove::messages::{FrameTransforms, SceneUpdate};
+        use foxglove::messages::{FrameTransforms, PointCloud, SceneUpdate};
         Self {
             _context: ctx.clone(),
             layers: Layer::ALL
@@ -150,6 +151,7 @@ impl Channels {
             legend: json_channel(ctx, super::LEGEND_TOPIC, "latentbki.Legend"),
             status: json_channel(ctx, super::STATUS_TOPIC, "latentbki.LinkStatus"),
             frame: protobuf_channel::<FrameTransforms>(ctx, super::FRAME_TOPIC),
+            heat_cloud: protobuf_channel::<PointCloud>(ctx, super::HEAT_CLOUD_TOPIC),
         }
     }
     pub(super) fn layer(&self, layer: Layer) -> &Arc<RawChannel> {

@@ -4,16 +4,17 @@
 //! whole scene. Apart from [`super::live`], the handle ingest holds, because this side owns the scene and
 //! never blocks ingest.
 
+use super::cloud::heat_cloud_bytes;
 use super::guard;
 use super::recording::Recording;
 use super::scene::{Layer, Scene};
 use super::shared::{Channels, Inbox, RecordingSummary, Shared, MAX_SAMPLES};
-use super::{Vocabulary, CENTRE_FRAME, FRAME_TOPIC, LEGEND_TOPIC, STATUS_TOPIC};
+use super::{Vocabulary, CENTRE_FRAME, FRAME_TOPIC, HEAT_CLOUD_TOPIC, LEGEND_TOPIC, STATUS_TOPIC};
 use crate::export::class_colour;
 use crate::{GlobalMap, GlobalVoxel, ReceiveStats, SessionState};
 use foxglove::messages::{FrameTransform, FrameTransforms, Quaternion, Timestamp, Vector3};
 use foxglove::{RawChannel, SinkId};
-use latentbki::wire::SessionConfig;
+use latentbki::wire::{SessionConfig, NO_FEATURE_SPACE};
 use latentbki::{decode::Codebook, key::VoxelKey};
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, PoisonError};
@@ -23,6 +24,8 @@ use std::time::{Duration, Instant};
 const CENTRE_EVERY: Duration = Duration::from_secs(1);
 /// ... and sent again when it moved at least this far (metres).
 const CENTRE_MOVE: f32 = 0.5;
+/// The heat cloud goes out whole at most this often as the map changes (at once for a new phrase).
+const CLOUD_EVERY: Duration = Duration::from_secs(1);
 
 /// What the view sent, for the summary line and the figures.
 #[derive(Clone, Debug, Default)]
@@ -56,6 +59,8 @@ pub(super) struct Worker<const D: usize, const K: usize> {
     pub(super) recording: Option<Recording>,
     pub(super) interval: Duration,
     pub(super) vocabulary: Option<Vocabulary<D, K>>,
+    /// Why the vocabulary may not decode this map (another feature space), if so.
+    pub(super) mismatch: Option<String>,
     pub(super) map: Option<GlobalMap<D>>,
     pub(super) scene: Option<Scene<D, K>>,
     pub(super) query: Option<Codebook<D, K>>,
@@ -68,6 +73,8 @@ pub(super) struct Worker<const D: usize, const K: usize> {
     pub(super) last_status: Option<Vec<u8>>,
     pub(super) last_legend: Option<Vec<u8>>,
     pub(super) last_frame: Option<(Instant, [f32; 3], Vec<u8>)>,
+    /// When the heat cloud was last sent, and whether the heat changed since.
+    pub(super) cloud: (Option<Instant>, bool),
     pub(super) refused_at_start: u64,
 }
 
@@ -84,8 +91,15 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             let batch = {
                 let mut inbox = self.shared.inbox();
                 while inbox.is_empty() && !inbox.stop {
-                    // A snapshot waiting for its interval wakes the thread when it is due.
-                    match self.recording.as_ref().and_then(Recording::due) {
+                    // A snapshot or a heat cloud waiting for its interval wakes the thread when due.
+                    let due = [
+                        self.recording.as_ref().and_then(Recording::due),
+                        self.cloud_due(),
+                    ]
+                    .into_iter()
+                    .flatten()
+                    .min();
+                    match due {
                         Some(due) if self.scene.as_ref().is_some_and(|s| !s.is_empty()) => {
                             if due.is_zero() {
                                 break;
@@ -133,6 +147,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
                     self.summary.latencies.push(done.duration_since(a));
                 }
             }
+            self.send_cloud(false);
             self.snapshot(false);
             if let Some(reply) = batch.end_recording {
                 let _ = reply.send(self.close_recording());
@@ -164,6 +179,28 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         }
     }
 
+    /// How long until a changed heat cloud is due (None: unchanged).
+    fn cloud_due(&self) -> Option<Duration> {
+        self.cloud.1.then(|| {
+            self.cloud.0.map_or(Duration::ZERO, |at| {
+                CLOUD_EVERY.saturating_sub(at.elapsed())
+            })
+        })
+    }
+
+    /// Send the heat cloud whole if it changed and is due (or `now`), to the clients that watch it.
+    fn send_cloud(&mut self, now: bool) {
+        if !now && self.cloud_due().is_none_or(|d| !d.is_zero()) {
+            return;
+        }
+        self.cloud = (Some(Instant::now()), false);
+        let watched = self.live.as_ref().is_some_and(|c| c.heat_cloud.has_sinks());
+        if let (true, Some(scene)) = (watched, &self.scene) {
+            let bytes = heat_cloud_bytes(scene, Timestamp::now());
+            self.send_live(|c| &c.heat_cloud, &bytes, None);
+        }
+    }
+
     /// The recording's snapshot, if one is due (or `now`).
     fn snapshot(&mut self, now: bool) {
         if let Some(r) = &mut self.recording {
@@ -184,6 +221,19 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         Some(r)
     }
 
+    /// Check the vocabulary against the map's feature space (when both are known): a PCA other than the
+    /// robots' decodes nothing, and the legend says why.
+    fn check_feature_space(&mut self) {
+        let want = self.vocabulary.as_ref().and_then(|v| v.feature_space);
+        let have = self.map.as_ref().map(|m| m.config().feature_space);
+        self.mismatch = match (want, have) {
+            (Some(want), Some(have)) if have != NO_FEATURE_SPACE && have != want => Some(format!(
+                "the PCA's feature space {want:#010x} is not the robots' ({have:#010x}): the map is not decoded"
+            )),
+            _ => None,
+        };
+    }
+
     fn set_vocabulary(&mut self, v: Vocabulary<D, K>) {
         let colours = v
             .names
@@ -195,6 +245,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             s.set_palette(colours);
         }
         self.vocabulary = Some(v);
+        self.check_feature_space();
     }
 
     fn update(
@@ -219,6 +270,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
                 }
                 self.scene = Some(scene);
                 self.map = Some(m);
+                self.check_feature_space();
                 full = true;
             }
         }
@@ -228,6 +280,8 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             self.set_phrase(p);
             asked_at = at;
             heat_full = true;
+            // The cloud first: it is what a viewer repaints fastest (see `cloud`).
+            self.send_cloud(true);
         }
         if let (Some(map), Some(scene)) = (&mut self.map, &mut self.scene) {
             let changed: Vec<VoxelKey> = voxels.keys().copied().collect();
@@ -239,12 +293,11 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             } else {
                 Scene::<D, K>::affected(map, changed)
             };
-            let dirty = scene.update(
-                map,
-                &keys,
-                self.vocabulary.as_ref().map(|v| &v.codebook),
-                self.query.as_ref(),
-            );
+            let codebook = match (&self.vocabulary, self.mismatch.is_some()) {
+                (Some(v), false) => Some(&v.codebook),
+                _ => None,
+            };
+            let dirty = scene.update(map, &keys, codebook, self.query.as_ref());
             // Colour ranges are fixed at a full scene and again each time the map has doubled since.
             if full || scene.len() >= 2 * self.fixed_at.max(32) {
                 scene.fix_ranges();
@@ -262,7 +315,15 @@ impl<const D: usize, const K: usize> Worker<D, K> {
                 if let Some(r) = &mut self.recording {
                     r.mark(layer);
                 }
-                if self.live.is_none() {
+                if layer == Layer::Heat {
+                    self.cloud.1 = true;
+                }
+                // Nobody watches this layer live: build nothing (a later subscriber gets it whole).
+                if !self
+                    .live
+                    .as_ref()
+                    .is_some_and(|c| c.layer(layer).has_sinks())
+                {
                     continue;
                 }
                 let buf = if whole {
@@ -294,6 +355,7 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         let encoder = self.vocabulary.as_ref().and_then(|v| v.phrases.as_ref());
         let (query, error) = match (encoder, p.is_empty()) {
             (_, true) => (None, None),
+            (Some(_), false) if self.mismatch.is_some() => (None, self.mismatch.clone()),
             (None, false) => (
                 None,
                 Some(format!(
@@ -378,6 +440,13 @@ impl<const D: usize, const K: usize> Worker<D, K> {
             self.send_live(which, &bytes, Some(sink));
             return;
         }
+        if topic == HEAT_CLOUD_TOPIC {
+            if let Some(scene) = &self.scene {
+                let bytes = heat_cloud_bytes(scene, Timestamp::now());
+                self.send_live(|c| &c.heat_cloud, &bytes, Some(sink));
+            }
+            return;
+        }
         let Some(layer) = Layer::ALL.into_iter().find(|l| l.topic() == topic) else {
             return;
         };
@@ -416,7 +485,8 @@ impl<const D: usize, const K: usize> Worker<D, K> {
         let all = self.scene.as_ref().map_or(0, Scene::len);
         serde_json::to_vec(&serde_json::json!({
             "classes": classes,
-            "unclassified": {"colour": "#808080", "voxels": all - classified.min(all)},
+            "undecoded": {"colour": "#808080", "voxels": all - classified.min(all)},
+            "error": self.mismatch,
             "query": self.phrase.0,
             "query_error": self.phrase.1,
             "robots": "palette by robot id (the class palette); white: several robots",

@@ -39,10 +39,6 @@ const tarball = arg("lichtblick");
 const shots = arg("shots");
 const phrase = arg("phrase", "tree");
 const chromium = arg("chromium", "/usr/bin/chromium");
-if (!hostSim || !tarball || !shots) {
-  console.error("usage: node browser.js --host-sim PATH --lichtblick TGZ --shots DIR [--phrase WORD]");
-  process.exit(2);
-}
 const layoutPath = path.join(__dirname, "..", "..", "foxglove-layout.json");
 const layout = fs.readFileSync(layoutPath, "utf8");
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
@@ -172,6 +168,7 @@ async function legend(page) {
   });
 }
 
+/** Type `word` into the Parameters panel's `query` field; the submit button. */
 async function setQuery(page, word) {
   const input = await page.waitForSelector('textarea[data-testid^="validated-input"]', { timeout: 30000 });
   await input.click();
@@ -183,7 +180,25 @@ async function setQuery(page, word) {
     const value = await input.evaluate((e) => e.value);
     throw new Error(`the Parameters panel offers no submit button (its field holds ${value})`);
   }
+  return submit;
+}
+
+/** Click `submit` and time until the panel at `rect` repaints (5 % of its pixels change); ms, or null. */
+async function timeRepaint(page, rect, submit) {
+  const clip = { x: rect.x, y: rect.y, width: rect.width, height: rect.height };
+  const before = PNG.sync.read(await page.screenshot({ clip }));
+  const t0 = Date.now();
   await submit.click();
+  while (Date.now() - t0 < 20000) {
+    const now = PNG.sync.read(await page.screenshot({ clip }));
+    let changed = 0;
+    for (let i = 0; i < now.data.length; i += 4) {
+      const d = [0, 1, 2].reduce((s, j) => s + Math.abs(now.data[i + j] - before.data[i + j]), 0);
+      if (d > 40) changed++;
+    }
+    if (changed > 0.05 * (now.data.length / 4)) return Date.now() - t0;
+  }
+  return null;
 }
 
 /** The 3D panels' canvases, left to right then top to bottom (the largest canvas of each panel). */
@@ -316,6 +331,10 @@ async function seek(page, fraction) {
 // ---- the run ---------------------------------------------------------------------------------------
 
 async function main() {
+  if (!hostSim || !tarball || !shots) {
+    console.error("usage: node browser.js --host-sim PATH --lichtblick TGZ --shots DIR [--phrase WORD]");
+    process.exit(2);
+  }
   fs.mkdirSync(shots, { recursive: true });
   const work = fs.mkdtempSync(path.join(os.tmpdir(), "latentbki-browser-"));
   const untar = spawnSync("tar", ["xzf", tarball, "-C", work]);
@@ -360,10 +379,20 @@ async function main() {
       classes.length > 0 && classes.every((c) => c.name && c.hex),
       classes.map((c) => `${c.name} ${c.hex} ${c.voxels}`).join(", ") || "no legend table",
     );
-    await setQuery(page, phrase);
-    await sleep(4000);
-    let png = await shoot(page, "live.png");
     let [map, heat] = await panels(page);
+    const submit = await setQuery(page, phrase);
+    const repaint = await timeRepaint(page, heat, submit);
+    check(
+      `live: the heat panel follows a query typed in the viewer`,
+      repaint !== null,
+      repaint === null
+        ? "no repaint within 20 s"
+        : `"${phrase}" submitted → heat panel repainted in ${repaint} ms (polling screenshots of ≈ 0.3 s ` +
+            `each; SwiftShader's software WebGL)`,
+    );
+    await sleep(3000);
+    let png = await shoot(page, "live.png");
+    [map, heat] = await panels(page);
     checkClasses("live", png, map, classes);
     checkHeat(`live, query "${phrase}"`, png, heat);
     await checkProblems("live", page);
@@ -418,7 +447,10 @@ async function main() {
   process.exit(failed.length ? 1 : 0);
 }
 
-main().catch((e) => {
-  console.error(`browser-check: FAILED: ${e.stack || e}`);
-  process.exit(1);
-});
+if (require.main === module) {
+  main().catch((e) => {
+    console.error(`browser-check: FAILED: ${e.stack || e}`);
+    process.exit(1);
+  });
+}
+module.exports = { openApp, importLayout, leftSidebar, legend, setQuery, timeRepaint, panels, problems };
