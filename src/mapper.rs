@@ -277,8 +277,14 @@ impl<
         let report = self
             .encoder
             .tick_live(w, budget, live_budget, self.map.changed_voxels(hand));
-        // The leading `live_sent` changed voxels from the hand were consumed: mark them streamed.
-        let consumed = match &report {
+        self.mark_live_sent(hand, &report);
+        report
+    }
+
+    /// After a live tick from `hand`: the leading `live_sent` changed voxels from the hand were consumed,
+    /// mark them streamed and move the hand past them.
+    fn mark_live_sent<E>(&mut self, hand: usize, report: &Result<TickReport, TickError<E>>) {
+        let consumed = match report {
             Ok(r) => r.live_sent,
             Err(TickError::Write(_, r)) => r.live_sent,
         };
@@ -291,7 +297,6 @@ impl<
             at = if s + 1 >= CAP { 0 } else { s + 1 };
         }
         self.live_hand = at;
-        report
     }
 
     /// Read the acknowledgements the back channel has ready (never blocking): acknowledged frames are
@@ -310,6 +315,21 @@ impl<
         self.encoder
             .count_bad_acks(self.acks.stats().refused().saturating_sub(before));
         Ok(n)
+    }
+
+    /// Apply the acknowledgements in bytes read from the back channel by any means (an interrupt's buffer,
+    /// an async read, a test): what [`Self::poll_acks`] does with the bytes it reads. Partial
+    /// acknowledgements wait for their rest.
+    pub fn feed_acks(&mut self, bytes: &[u8]) {
+        let settings = *self.encoder.settings();
+        let before = self.acks.stats().refused();
+        let encoder = &mut self.encoder;
+        self.acks
+            .feed(bytes, settings.robot, settings.session, |ack| {
+                encoder.acknowledge(&ack);
+            });
+        self.encoder
+            .count_bad_acks(self.acks.stats().refused().saturating_sub(before));
     }
 
     /// What the acknowledgement reader saw.
@@ -378,8 +398,8 @@ impl<
             let (Ok(n) | Err(n)) = flushed;
             report.evicted = report.evicted.saturating_add(n as u32);
             let left = budget.saturating_sub(report.bytes);
-            if flushed.is_ok() && self.encoder.queued() == 0 && !self.encoder.has_pending() {
-                if self.encoder.frames_since_stats() == 0 && self.encoder.next_seq() != 0 {
+            if flushed.is_ok() && self.drained_but_stats() {
+                if self.stats_closed() {
                     report.done = true; // the closing statistics are the last frame written
                     return Ok(report);
                 }
@@ -389,7 +409,7 @@ impl<
                         report.done = true;
                         Ok(report)
                     }
-                    Ok(None) if left >= N => Err(DrainError::Stuck),
+                    Ok(None) if left >= N && report.bytes == 0 => Err(DrainError::Stuck),
                     Ok(None) => Ok(report),
                     Err(e) => Err(DrainError::Write(e)),
                 };
@@ -399,14 +419,25 @@ impl<
                 .tick(w, left, core::iter::empty::<Evicted<'_, D>>())?;
             report.bytes += sent.bytes;
             if sent.frames == sent.resent && n == 0 {
-                // No progress: out of budget, or (a whole frame's budget left) stuck.
-                return if budget.saturating_sub(report.bytes) >= N {
+                // No progress: out of budget, or (nothing written with a whole frame's budget) stuck.
+                return if report.bytes == 0 && budget >= N {
                     Err(DrainError::Stuck)
                 } else {
                     Ok(report)
                 };
             }
         }
+    }
+
+    /// The queue is empty and no frame waits for its write (after a flush that emptied the map): only the
+    /// closing statistics may be left to send.
+    fn drained_but_stats(&self) -> bool {
+        self.encoder.queued() == 0 && !self.encoder.has_pending()
+    }
+
+    /// The last frame written is link statistics (a drain's closing frame).
+    fn stats_closed(&self) -> bool {
+        self.encoder.frames_since_stats() == 0 && self.encoder.next_seq() != 0
     }
 
     /// How many evicted voxels (summaries) the encoder's queue holds with this session's codec: `QB` / the
@@ -441,6 +472,9 @@ impl<
         crate::info_gain::view_score(lut, &self.map, prior.lambda, hits)
     }
 }
+
+#[cfg(feature = "async")]
+mod asynch;
 
 #[cfg(test)]
 mod link_tests;

@@ -98,6 +98,20 @@ pub struct Refusals {
     pub no_session_room: u32,
 }
 
+impl core::ops::AddAssign for Refusals {
+    /// Sum two receivers' counters (saturating): a base station's links together.
+    fn add_assign(&mut self, o: Self) {
+        let add = |a: &mut u32, b: u32| *a = a.saturating_add(b);
+        add(&mut self.version, o.version);
+        add(&mut self.malformed, o.malformed);
+        add(&mut self.wrong_config, o.wrong_config);
+        add(&mut self.invalid_voxel, o.invalid_voxel);
+        add(&mut self.duplicate_frames, o.duplicate_frames);
+        add(&mut self.too_old, o.too_old);
+        add(&mut self.no_session_room, o.no_session_room);
+    }
+}
+
 impl Refusals {
     fn count(&mut self, r: Refusal) {
         let c = match r {
@@ -262,6 +276,15 @@ impl<const D: usize, const N: usize> Receiver<D, N> {
     /// The configuration frames must have (`None` until adopted).
     pub fn config(&self) -> Option<&SessionConfig> {
         self.config.as_ref()
+    }
+    /// Take `config` as the receiver's if it has none yet (it is [`receivable`]): receivers that feed one
+    /// map (a base station's links) share the configuration the first of them adopted. Returns whether the
+    /// receiver's configuration is now `config`.
+    pub fn adopt(&mut self, config: SessionConfig) -> bool {
+        if self.config.is_none() && receivable::<D>(&config) {
+            self.config = Some(config);
+        }
+        self.config == Some(config)
     }
     /// Refusals after the frame layer.
     pub fn refusals(&self) -> Refusals {

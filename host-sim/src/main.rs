@@ -52,6 +52,9 @@ enum Command {
     /// Labels, a text query and PNG/PLY exports of a map database (read-only: works while a base station
     /// writes it).
     MapQuery(host_sim::base_station::cli::MapQueryArgs),
+    /// Merge map databases into a new one: the map one base station would hold had it received every
+    /// frame of each (refuses maps of different configurations).
+    MapMerge(host_sim::base_station::cli::MapMergeArgs),
     /// The feature space of a robot's classes: the PCA the base station decodes with (DIR/pca.npz), the
     /// firmware's constants (DIR/feature_space.rs: id, int8 scale, per-class int8 prototypes).
     FeatureSpace(host_sim::feature_space::FeatureSpaceArgs),
@@ -335,6 +338,7 @@ fn run() -> Result<()> {
         Command::BaseStation(args) => host_sim::base_station::cli::run(&args),
         Command::MapInfo(args) => host_sim::base_station::cli::map_info(&args),
         Command::MapQuery(args) => host_sim::base_station::cli::map_query(&args),
+        Command::MapMerge(args) => host_sim::base_station::cli::map_merge(&args),
         Command::FeatureSpace(args) => host_sim::feature_space::run(&args),
         Command::Integrate(args) => {
             let config = args.map.config()?;

@@ -60,9 +60,8 @@ pub fn run(args: &ViewBenchArgs) -> Result<()> {
             VoxelKey::new(i % side, i / side, (i % 7 == 0) as i32),
             GlobalVoxel {
                 settled: obs,
-                settled_time: 0,
                 closed: vec![id],
-                live: Vec::new(),
+                ..GlobalVoxel::EMPTY
             },
         );
     }

@@ -28,10 +28,14 @@
 mod codebook;
 pub mod loopback;
 mod run;
+#[cfg(feature = "async")]
+mod run_async;
 mod scene;
 
 pub use codebook::*;
 pub use run::*;
+#[cfg(feature = "async")]
+pub use run_async::run_async;
 pub use scene::*;
 
 #[cfg(test)]

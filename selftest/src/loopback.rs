@@ -81,3 +81,10 @@ impl embedded_io::ReadReady for Loopback {
         Ok(self.read < self.len)
     }
 }
+
+#[cfg(feature = "async")]
+impl embedded_io_async::Read for Loopback {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        embedded_io::Read::read(self, buf)
+    }
+}

@@ -34,6 +34,18 @@ pub struct DecoderStats {
     pub overflows: u32,
 }
 
+impl core::ops::AddAssign for DecoderStats {
+    /// Sum two decoders' counters (saturating): a base station's links together.
+    fn add_assign(&mut self, o: Self) {
+        let add = |a: &mut u32, b: u32| *a = a.saturating_add(b);
+        add(&mut self.frames, o.frames);
+        add(&mut self.cobs_errors, o.cobs_errors);
+        add(&mut self.too_short, o.too_short);
+        add(&mut self.crc_errors, o.crc_errors);
+        add(&mut self.overflows, o.overflows);
+    }
+}
+
 impl DecoderStats {
     /// All refused runs.
     pub fn refused(&self) -> u32 {

@@ -73,6 +73,40 @@ impl SeqTracker {
         SeqVerdict::Late
     }
 
+    /// The sequence state of two receivers of one session together (merging two maps' databases): a frame
+    /// either received counts as received, so the union refuses every copy either would have. The window
+    /// is exact; `received` is the larger of the two plus the frames only the other's window shows, and
+    /// `lost` what the union's numbers leave unfilled (frames before both windows are counted as the
+    /// higher one counted them).
+    pub fn union(&self, other: &Self) -> Self {
+        if !other.started {
+            return *self;
+        }
+        if !self.started {
+            return *other;
+        }
+        let (hi, lo) = if other.highest.wrapping_sub(self.highest) < 1 << 31 {
+            (other, self)
+        } else {
+            (self, other)
+        };
+        let shift = hi.highest.wrapping_sub(lo.highest);
+        let lo_window = if shift >= 64 { 0 } else { lo.window << shift };
+        let window = hi.window | lo_window;
+        let gained = (window & !hi.window).count_ones();
+        let received = hi.received.saturating_add(gained);
+        Self {
+            started: true,
+            highest: hi.highest,
+            window,
+            received,
+            lost: hi.lost.saturating_sub(gained),
+            duplicates: hi.duplicates.max(lo.duplicates),
+            late: hi.late.max(lo.late),
+            too_old: hi.too_old.max(lo.too_old),
+        }
+    }
+
     /// Highest sequence number seen (if any).
     pub fn highest(&self) -> Option<u32> {
         self.started.then_some(self.highest)

@@ -55,6 +55,16 @@ pub const RISCV32_VIRT: Board = Board {
     cooling: Cooling::Fixed,
 };
 
+/// The embassy board: the self-test over `embedded-io-async` on an embassy executor, Cortex-M4F on QEMU's
+/// mps2-an386 (`boards/embassy-mps2-an386`; `tests/embassy_qemu.rs`).
+pub const EMBASSY_AN386: Board = Board {
+    dir: "embassy-mps2-an386",
+    target: "thumbv7em-none-eabihf",
+    qemu: "qemu-system-arm",
+    elf_var: "LATENTBKI_EMBASSY_ELF",
+    cooling: Cooling::Float,
+};
+
 /// The repository's root.
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -1,12 +1,15 @@
 //! The base station: bytes from any number of robots in, one global map out.
 //!
-//! [`BaseStation::receive`] takes bytes in whatever chunks the port delivers. The core's
+//! [`BaseStation::receive`] takes bytes in whatever chunks the port delivers; [`BaseStation::receive_on`]
+//! takes them from one of many *links* (serial ports, ptys, TCP connections, recordings), each with its own
+//! decoder state, counters and acknowledgements, all feeding the one map. The core's
 //! [`latentbki::receiver::Receiver`] checks each frame layer by layer — COBS and CRC, protocol version and
 //! parse, configuration id, every summary in it, sequence number per `(robot, session)` — and a frame is
 //! applied to the [`GlobalMap`] only if all of it passes; every refusal is counted by reason, every gap in
-//! sequence numbers is counted as lost. Each accepted (or repeated) frame is acknowledged: the
-//! acknowledgements of one `receive` call wait in [`BaseStation::take_acks`] for the link's other direction
-//! (protocol 3; a link without one ignores them).
+//! sequence numbers is counted as lost. Each accepted (or repeated) frame is acknowledged on the link it
+//! came in on ([`BaseStation::take_acks_on`]; protocol 3; a link without a back channel ignores them):
+//! at once ([`AckPolicy::Immediate`]), or — a base station with a database — only once a commit made the
+//! frame durable ([`AckPolicy::AfterCommit`]), so a crash never loses a frame its robot was told is safe.
 //! What changed since the last commit (voxels touched, sessions whose frames touched them) is tracked so
 //! that [`BaseStation::changes`] hands a [`store::MapStore`] exactly that, at frame boundaries only: a
 //! frame's summaries and the sequence state that marks it merged are always in the same change set.
@@ -19,6 +22,7 @@
 
 pub mod export;
 pub mod global_map;
+mod merge;
 pub mod obs_map;
 pub mod png_io;
 pub mod store;
@@ -26,7 +30,8 @@ pub mod store;
 pub mod view;
 
 pub use global_map::{
-    Applied, ContributionId, GlobalMap, GlobalVoxel, RecordError, Uncertainty, VOCAB_CAP,
+    Applied, ContributionId, GlobalMap, GlobalVoxel, MergeError, MergeReport, RecordError,
+    Uncertainty, VOCAB_CAP,
 };
 pub use obs_map::ObsMap;
 
@@ -127,6 +132,63 @@ pub enum RestoreError {
     Invalid(String),
 }
 
+/// Which of a base station's links bytes came in on; link 0 is [`BaseStation::receive`]'s.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct LinkId(pub u32);
+
+/// When a base station releases acknowledgements.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AckPolicy {
+    /// As soon as the frames are handled (a map in memory only: nothing gets more durable than that).
+    #[default]
+    Immediate,
+    /// After the commit that made them durable ([`BaseStation::commit`]): what a robot is told is safe
+    /// survives a crash of the base station.
+    AfterCommit,
+}
+
+/// One link: its own decoder state (a frame cut on one link never glues to another's bytes), counters and
+/// acknowledgements.
+struct Link<const D: usize> {
+    receiver: Box<Receiver<D, MAX_FRAME>>,
+    /// Frames applied, summaries merged / live / ignored, ceilings (the decoder's and receiver's
+    /// counters are the receiver's).
+    stats: ReceiveStats,
+    /// Sessions whose frames arrived on this link since its last acknowledgements were released.
+    to_ack: std::collections::BTreeSet<(u16, u32)>,
+    /// Acknowledgements on the wire, waiting for [`BaseStation::take_acks_on`].
+    ack_bytes: Vec<u8>,
+    /// Acknowledgements released.
+    acks: u64,
+    /// Bytes received.
+    bytes: u64,
+}
+
+impl<const D: usize> Link<D> {
+    fn new(config: Option<SessionConfig>) -> Self {
+        Self {
+            receiver: Box::new(Receiver::new(config)),
+            stats: ReceiveStats::default(),
+            to_ack: Default::default(),
+            ack_bytes: Vec::new(),
+            acks: 0,
+            bytes: 0,
+        }
+    }
+}
+
+/// What one link delivered ([`BaseStation::link_stats`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkCounters {
+    /// Bytes received.
+    pub bytes: u64,
+    /// Frames and summaries as [`ReceiveStats`] counts them (`lost` and `late` are per session, not per
+    /// link: 0 here).
+    pub receive: ReceiveStats,
+    /// Acknowledgements released for this link.
+    pub acks: u64,
+}
+
 /// One accepted frame, for audits (enabled with [`BaseStation::keep_journal`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct JournalEntry {
@@ -142,14 +204,10 @@ pub struct JournalEntry {
 
 /// Receives frames and keeps the global map.
 pub struct BaseStation<const D: usize> {
-    receiver: Box<Receiver<D, MAX_FRAME>>,
+    links: Vec<Link<D>>,
+    ack_policy: AckPolicy,
     map: Option<GlobalMap<D>>,
-    /// The newest acknowledgement of each session this `receive` call touched.
-    acks: BTreeMap<(u16, u32), Ack>,
-    /// Acknowledgements on the wire, waiting for [`BaseStation::take_acks`].
-    ack_bytes: Vec<u8>,
     sessions: BTreeMap<(u16, u32), SessionState>,
-    stats: ReceiveStats,
     journal: Option<Vec<JournalEntry>>,
     /// Changed since the last commit.
     dirty_voxels: HashSet<VoxelKey>,
@@ -184,12 +242,10 @@ impl<const D: usize> BaseStation<D> {
             .as_ref()
             .map_or_else(HashSet::new, |m| m.voxels().map(|(k, _)| *k).collect());
         Self {
-            receiver: Box::new(Receiver::new(expected)),
+            links: vec![Link::new(expected)],
+            ack_policy: AckPolicy::Immediate,
             map,
-            acks: BTreeMap::new(),
-            ack_bytes: Vec::new(),
             sessions: BTreeMap::new(),
-            stats: ReceiveStats::default(),
             journal: None,
             dirty_voxels,
             dirty_sessions: HashSet::new(),
@@ -224,7 +280,7 @@ impl<const D: usize> BaseStation<D> {
                     "voxel key {key:?} out of range"
                 )));
             }
-            let v = GlobalVoxel::from_record(rec)
+            let v = GlobalVoxel::from_record(rec, map.forgetting().as_ref())
                 .map_err(|e| RestoreError::Invalid(format!("voxel {key:?}: {e}")))?;
             map.insert_raw(*key, v);
         }
@@ -279,13 +335,78 @@ impl<const D: usize> BaseStation<D> {
         self.dirty_sessions.clear();
     }
 
-    /// Write the changes since the last commit to `store` in one transaction.
+    /// Write the changes since the last commit to `store` in one transaction; then (with
+    /// [`AckPolicy::AfterCommit`]) release the acknowledgements of every frame handled so far, now durable.
     pub fn commit(&mut self, store: &mut dyn MapStore) -> Result<(), StoreError> {
         if self.has_changes() {
             store.commit(&self.changes())?;
             self.committed();
         }
+        self.release_acks();
         Ok(())
+    }
+
+    /// When acknowledgements are released (default [`AckPolicy::Immediate`]).
+    pub fn set_ack_policy(&mut self, policy: AckPolicy) {
+        self.ack_policy = policy;
+    }
+    /// The policy in force.
+    pub fn ack_policy(&self) -> AckPolicy {
+        self.ack_policy
+    }
+
+    /// Acknowledgements waiting for a commit ([`AckPolicy::AfterCommit`]).
+    pub fn has_unreleased_acks(&self) -> bool {
+        self.links.iter().any(|l| !l.to_ack.is_empty())
+    }
+
+    /// Encode, for each link, an acknowledgement of each session whose frames arrived on it since its
+    /// last release: the session's whole sequence state as it is now, in ascending `(robot, session)`
+    /// order. [`Self::commit`] calls it after a commit ([`AckPolicy::AfterCommit`]); with
+    /// [`AckPolicy::Immediate`] every [`Self::receive_on`] does.
+    pub fn release_acks(&mut self) {
+        for link in &mut self.links {
+            for id in std::mem::take(&mut link.to_ack) {
+                let Some(a) = self
+                    .sessions
+                    .get(&id)
+                    .and_then(|s| Ack::of(id.0, id.1, &s.seq))
+                else {
+                    continue;
+                };
+                let mut wire = [0u8; latentbki::frame::ack::MAX_ACK_WIRE];
+                if let Some(n) = a.encode(&mut wire) {
+                    link.ack_bytes.extend_from_slice(&wire[..n]);
+                    link.acks += 1;
+                }
+            }
+        }
+    }
+
+    /// Add a link (its own decoder state and acknowledgements); it takes the map's configuration, or
+    /// adopts the first valid session header like every link until one did.
+    pub fn add_link(&mut self) -> LinkId {
+        let config = self.map.as_ref().map(|m| *m.config());
+        self.links.push(Link::new(config));
+        LinkId(self.links.len() as u32 - 1)
+    }
+    /// Links so far (at least one).
+    pub fn link_count(&self) -> usize {
+        self.links.len()
+    }
+    /// What a link delivered (zeros for a link that does not exist).
+    pub fn link_stats(&self, link: LinkId) -> LinkCounters {
+        let Some(l) = self.links.get(link.0 as usize) else {
+            return LinkCounters::default();
+        };
+        let mut receive = l.stats;
+        receive.decoder = l.receiver.decoder_stats();
+        receive.rejected = l.receiver.refusals();
+        LinkCounters {
+            bytes: l.bytes,
+            receive,
+            acks: l.acks,
+        }
     }
 
     /// Track the voxels every frame changes for [`BaseStation::take_watched`] (a live view).
@@ -316,11 +437,19 @@ impl<const D: usize> BaseStation<D> {
     pub fn into_map(self) -> Option<GlobalMap<D>> {
         self.map
     }
-    /// Counters so far.
+    /// Counters so far, every link together.
     pub fn stats(&self) -> ReceiveStats {
-        let mut s = self.stats;
-        s.decoder = self.receiver.decoder_stats();
-        s.rejected = self.receiver.refusals();
+        let mut s = ReceiveStats::default();
+        for l in &self.links {
+            s.decoder += l.receiver.decoder_stats();
+            s.rejected += l.receiver.refusals();
+            s.frames += l.stats.frames;
+            s.merged += l.stats.merged;
+            s.updated += l.stats.updated;
+            s.ignored += l.stats.ignored;
+            s.clamped_mean_scale += l.stats.clamped_mean_scale;
+            s.clamped_psi += l.stats.clamped_psi;
+        }
         s.lost = self.sessions.values().map(|v| v.seq.lost).sum();
         s.late = self.sessions.values().map(|v| v.seq.late).sum();
         s
@@ -330,35 +459,56 @@ impl<const D: usize> BaseStation<D> {
         &self.sessions
     }
 
-    /// Feed received bytes (any chunking). Acknowledgements of what they carried wait in
+    /// Feed received bytes (any chunking) of link 0. Acknowledgements of what they carried wait in
     /// [`Self::take_acks`].
-    pub fn receive(&mut self, mut bytes: &[u8]) {
+    pub fn receive(&mut self, bytes: &[u8]) {
+        self.receive_on(LinkId(0), bytes);
+    }
+
+    /// Feed bytes received on `link` (any chunking; a link not added yet is added, with every link before
+    /// it). Acknowledgements of what they carried wait in [`Self::take_acks_on`] — at once, or after the
+    /// next commit ([`AckPolicy`]).
+    pub fn receive_on(&mut self, link: LinkId, mut bytes: &[u8]) {
+        while self.links.len() <= link.0 as usize {
+            self.add_link();
+        }
+        let li = link.0 as usize;
+        self.links[li].bytes += bytes.len() as u64;
         while !bytes.is_empty() {
             let mut table = Table {
                 sessions: &mut self.sessions,
                 dirty: &mut self.dirty_sessions,
             };
-            let (frame, ack, rest) = match self.receiver.feed(bytes, &mut table) {
+            // This link, and the others (which share a configuration it adopts).
+            let (before, from) = self.links.split_at_mut(li);
+            let Some((l, after)) = from.split_first_mut() else {
+                return;
+            };
+            let (frame, ack, rest) = match l.receiver.feed(bytes, &mut table) {
                 Receipt::NeedMore => break,
                 Receipt::Refused { ack, rest, .. } => (None, ack, rest),
                 Receipt::Accepted { frame, rest } => (Some(frame), frame.ack, rest),
             };
             bytes = rest;
             if let Some(a) = ack {
-                self.acks.insert((a.robot, a.session), a);
+                l.to_ack.insert((a.robot, a.session));
             }
             let Some(frame) = frame else { continue };
             if self.map.is_none() {
-                // The receiver adopted the first valid session header's configuration.
+                // This link's receiver adopted the first valid session header's configuration: it is
+                // every link's.
                 self.map = GlobalMap::new(frame.config).ok();
                 self.config_dirty = self.map.is_some();
+                for other in before.iter_mut().chain(after.iter_mut()) {
+                    other.receiver.adopt(frame.config);
+                }
             }
             let header = frame.header;
             let state = self
                 .sessions
                 .entry((header.robot, header.session))
                 .or_default();
-            self.stats.frames += 1;
+            l.stats.frames += 1;
             match frame.message {
                 Message::Session(_) => state.header_seen = true,
                 Message::Stats(l) => state.link = Some(l),
@@ -380,7 +530,7 @@ impl<const D: usize> BaseStation<D> {
             for s in batch.iter::<D>(frame.config.codec).flatten() {
                 Self::apply(
                     map,
-                    &mut self.stats,
+                    &mut l.stats,
                     &mut self.dirty_voxels,
                     self.watched.as_mut(),
                     &header,
@@ -388,17 +538,21 @@ impl<const D: usize> BaseStation<D> {
                 );
             }
         }
-        for a in std::mem::take(&mut self.acks).into_values() {
-            let mut wire = [0u8; latentbki::frame::ack::MAX_ACK_WIRE];
-            if let Some(n) = a.encode(&mut wire) {
-                self.ack_bytes.extend_from_slice(&wire[..n]);
-            }
+        if self.ack_policy == AckPolicy::Immediate {
+            self.release_acks();
         }
     }
 
-    /// The acknowledgements to send back to the robots (bytes for the link's other direction), taken.
+    /// The acknowledgements to send back on link 0 (bytes for the link's other direction), taken.
     pub fn take_acks(&mut self) -> Vec<u8> {
-        std::mem::take(&mut self.ack_bytes)
+        self.take_acks_on(LinkId(0))
+    }
+
+    /// The acknowledgements released for `link`, taken.
+    pub fn take_acks_on(&mut self, link: LinkId) -> Vec<u8> {
+        self.links
+            .get_mut(link.0 as usize)
+            .map_or_else(Vec::new, |l| std::mem::take(&mut l.ack_bytes))
     }
 
     fn apply(

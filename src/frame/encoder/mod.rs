@@ -183,6 +183,8 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
     pending_live: u32,
 }
 
+#[cfg(feature = "async")]
+mod asynch;
 mod packer;
 mod queue;
 mod scheduler;

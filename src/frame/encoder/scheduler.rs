@@ -25,13 +25,13 @@ use crate::wire::{DeltaBase, Message};
 /// What the pending frame (built in `scratch`, not yet written whole) is.
 pub(super) const PENDING_NONE: u8 = 0;
 const PENDING_HEADER: u8 = 1;
-const PENDING_STATS: u8 = 2;
+pub(super) const PENDING_STATS: u8 = 2;
 /// Queued (final) voxels, maybe with live ones: kept for re-sending with a back channel.
 const PENDING_KEPT_VOXELS: u8 = 3;
 /// Live voxels only: never kept.
 const PENDING_LIVE_VOXELS: u8 = 4;
 /// Flag on a control frame sent out of the schedule when the re-send buffer cannot keep it.
-const PENDING_UNKEPT: u8 = 0x80;
+pub(super) const PENDING_UNKEPT: u8 = 0x80;
 
 /// Where a tick is in its order of business.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,7 +106,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 
     /// A tick that writes only what is pending, then forced control frames ([`Self::send_header`]).
-    fn forced_tick(&self) -> Tick {
+    pub(super) fn forced_tick(&self) -> Tick {
         Tick {
             phase: Phase::Pending,
             budget: usize::MAX,
@@ -128,7 +128,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 
     /// Build the pending frame from a control message. Returns false if it cannot be built.
-    fn pend_message(&mut self, message: Message<'_>, kind: u8) -> bool {
+    pub(super) fn pend_message(&mut self, message: Message<'_>, kind: u8) -> bool {
         match self.build_message(message) {
             Ok(n) => {
                 self.pending_len = n;

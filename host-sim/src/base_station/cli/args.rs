@@ -10,17 +10,43 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 /// Options of `host-sim base-station`.
+///
+/// Every link is read at once, each with its own decoder state, and every frame they carry merges into
+/// the one map. On a link with a back channel — a serial port, a pty, a TCP connection, `--stdio` — the
+/// base station writes acknowledgements: with `--map`, only for frames its database holds (after the
+/// commit that made them durable), so a robot never drops a frame a crash could lose; without, at once.
 #[derive(Args, Debug)]
+#[command(
+    after_help = "Acknowledgements (protocol 3): each accepted or repeated frame is acknowledged \
+on the link it came in on — serial ports, ptys and other terminals, TCP connections (--listen) and \
+--stdio's stdout; recordings and `-` have no back channel. With --map a frame is acknowledged only after \
+the commit that made it durable (at most --commit-ms later), so a crash never loses a frame its robot \
+was told is safe; --no-acks writes none."
+)]
 pub struct BaseStationArgs {
-    /// Where the bytes come from: a file or a pty path, or `-` for stdin. Not with `--serial`.
-    pub(super) input: Option<PathBuf>,
-    /// Read from a serial port (e.g. /dev/ttyUSB0) instead.
-    #[arg(long, conflicts_with = "input")]
-    pub(super) serial: Option<String>,
-    /// Serial baud rate.
+    /// Inputs: recordings (read one after another, in this order, as if fed in turn), ptys and other
+    /// terminals (read and acknowledged, all at once), `-` for stdin (read only).
+    pub(super) inputs: Vec<PathBuf>,
+    /// A serial port to read and acknowledge, as PORT or PORT@BAUD (e.g. /dev/ttyUSB0@921600); repeat it
+    /// for several robots' ports.
+    #[arg(long, value_name = "PORT[@BAUD]")]
+    pub(super) serial: Vec<String>,
+    /// Baud rate of ports (and ptys) given without one.
     #[arg(long, default_value_t = 115_200)]
     pub(super) baud: u32,
-    /// Stop after this many seconds (serial ports and ptys never end by themselves).
+    /// Accept TCP connections from gateways, each a robot's link (its serial bytes in, acknowledgements
+    /// out) [default: 127.0.0.1:7707, this machine only; name another address to listen beyond it].
+    /// Write `--listen=ADDR` before a positional argument.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = super::links::DEFAULT_LISTEN)]
+    pub(super) listen: Option<std::net::SocketAddr>,
+    /// Read a robot's bytes on stdin and write its acknowledgements on stdout (a gateway, e.g. `socat` or
+    /// `ssh`, runs the base station at the other end of a pipe); the report goes to stderr.
+    #[arg(long)]
+    pub(super) stdio: bool,
+    /// Write no acknowledgements (a one-way radio, or a line another device also reads).
+    #[arg(long)]
+    pub(super) no_acks: bool,
+    /// Stop after this many seconds (serial ports, ptys and listeners never end by themselves).
     #[arg(long, value_parser = parse_duration, allow_negative_numbers = true)]
     pub(super) duration: Option<Duration>,
     /// The global map database (SQLite): created if missing, continued if present (sessions included:
@@ -28,7 +54,7 @@ pub struct BaseStationArgs {
     #[arg(long)]
     pub(super) map: Option<PathBuf>,
     /// Commit accepted frames to the database at least this often (milliseconds): a crash loses at most
-    /// the frames of the last interval, and counts them lost on restart.
+    /// the frames of the last interval, which were not acknowledged yet (their robots send them again).
     #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
     pub(super) commit_ms: u64,
     #[command(flatten)]

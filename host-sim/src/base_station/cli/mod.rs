@@ -1,20 +1,38 @@
-//! `host-sim base-station`: receive robots' streams from a serial port, a file, a pty or stdin into the
-//! global map database; `host-sim map-info` and `host-sim map-query` read that database, also while a
-//! base station is writing it.
+//! `host-sim base-station`: receive robots' streams from any number of links at once — serial ports, ptys,
+//! TCP connections from gateways, stdin, recordings — into the global map database, acknowledging each
+//! frame on its link once the database holds it; `host-sim map-info` and `host-sim map-query` read that
+//! database, also while a base station is writing it; `host-sim map-merge` merges two of them.
 //!
-//! Bytes are read on their own thread, so the receiver commits at the bounded interval (`--commit-ms`)
-//! and answers SIGINT/SIGTERM even while the port is silent: the signal commits, prints the summary and
+//! Every link is read on its own thread, so the receiver commits at the bounded interval (`--commit-ms`)
+//! and answers SIGINT/SIGTERM even while every port is silent: the signal commits, prints the summary and
 //! exits cleanly (a second signal exits at once).
 //!
 //! The options are in `args`, the reading of the user's vocabulary (`--pca`, `--classes`, `--query`) in
-//! `vocabulary`, the byte pump in `receive`.
+//! `vocabulary`, the links in `links`, the receiving loop in `receive`, the merge of databases in `merge`.
 
 use super::export::write_ply;
 use super::store::{MapStore, SqliteStore, SCHEMA_VERSION};
 use super::view::Viewer;
 use super::{BaseStation, GlobalMap, VOCAB_CAP};
 
+/// Where the report goes: stdout, or stderr under `--stdio` (stdout carries the acknowledgements).
+pub(crate) static REPORT_TO_STDERR: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
+/// `println!` to the report's stream.
+macro_rules! say {
+    ($($t:tt)*) => {
+        if $crate::base_station::cli::REPORT_TO_STDERR.load(std::sync::atomic::Ordering::Relaxed) {
+            eprintln!($($t)*)
+        } else {
+            println!($($t)*)
+        }
+    };
+}
+
 mod args;
+pub mod links;
+mod merge;
 mod pictures;
 mod receive;
 mod view;
@@ -22,8 +40,8 @@ mod vocabulary;
 use anyhow::{bail, Context, Result};
 pub use args::{BaseStationArgs, MapInfoArgs, MapQueryArgs, OutputArgs, ViewArgs};
 use latentbki::decode::Codebook;
-pub use receive::{pump, pump_with, spawn_reader, Ending, PumpOptions};
-use std::io::Read;
+pub use merge::{map_merge, MapMergeArgs};
+pub use receive::{channel, pump, pump_with, spawn_reader, Ending, LinkReport, PumpOptions};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -91,7 +109,7 @@ pub fn read_map(path: &Path) -> Result<BaseStation<DIM>> {
 /// The receiver's summary lines.
 fn print_summary<const D: usize>(base: &BaseStation<D>) {
     let s = base.stats();
-    println!(
+    say!(
         "frames accepted {}; summaries merged {}, live {}, ignored copies {}; frames lost {} (late {}); refused: CRC {}, COBS {}, short {}, overflow {}, version {}, malformed {}, wrong config {}, invalid voxel {}, duplicate {}, too old {}; at the codec's ceiling (clamped): mu scale {}, psi {}",
         s.frames, s.merged, s.updated, s.ignored, s.lost, s.late,
         s.decoder.crc_errors, s.decoder.cobs_errors, s.decoder.too_short, s.decoder.overflows,
@@ -104,7 +122,7 @@ fn print_summary<const D: usize>(base: &BaseStation<D>) {
 /// One line per `(robot, session)`: its sequence state over its whole life (across restarts).
 fn print_sessions<const D: usize>(base: &BaseStation<D>) {
     for ((robot, session), st) in base.sessions() {
-        println!(
+        say!(
             "robot {robot} session {session}: {} frames received, {} lost, {} late{}{}",
             st.seq.received,
             st.seq.lost,
@@ -135,7 +153,7 @@ fn show(
     if let Some(prefix) = &out.png {
         let query = query.zip(out.query.as_deref());
         for f in pictures::write(map, vocab, query, prefix, out.scale)? {
-            println!("wrote {}", f.display());
+            say!("wrote {}", f.display());
         }
     }
     if let Some(p) = &out.ply {
@@ -144,7 +162,7 @@ fn show(
                 .with_context(|| format!("--ply: creating the folder {}", folder.display()))?;
         }
         write_ply(map, cb, p)?;
-        println!("wrote {}", p.display());
+        say!("wrote {}", p.display());
     }
     if let Some((names, _, _)) = vocab {
         let mut counts = vec![0usize; names.len()];
@@ -154,7 +172,7 @@ fn show(
             }
         }
         for (n, c) in names.iter().zip(counts) {
-            println!("  {n}: {c} voxels");
+            say!("  {n}: {c} voxels");
         }
     }
     if let (Some(q), Some(phrase)) = (query, &out.query) {
@@ -167,9 +185,11 @@ fn show(
         scored.sort_by(|a, b| b.0.total_cmp(&a.0));
         for (score, k) in scored.iter().take(top) {
             let c = k.centroid(voxel);
-            println!(
+            say!(
                 "query \"{phrase}\": score {score:.3} at ({:.2}, {:.2}, {:.2}) m",
-                c[0], c[1], c[2]
+                c[0],
+                c[1],
+                c[2]
             );
         }
     }
@@ -192,7 +212,7 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
             if let Some(map) = base.map() {
                 // A continued map knows the robots' feature space already: check the PCA now.
                 check_feature_space(&args.out, vocab.as_ref(), map)?;
-                println!(
+                say!(
                     "continuing {} ({} voxels, {} sessions)",
                     p.display(),
                     map.len(),
@@ -203,19 +223,8 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         }
         None => (None, BaseStation::<DIM>::adopting()),
     };
-    let source: Box<dyn Read + Send> = match (&args.serial, &args.input) {
-        (Some(port), _) => Box::new(
-            serialport::new(port, args.baud)
-                .timeout(Duration::from_millis(200))
-                .open()
-                .with_context(|| format!("opening serial port {port}"))?,
-        ),
-        (None, Some(p)) if p.as_os_str() == "-" => Box::new(std::io::stdin()),
-        (None, Some(p)) => {
-            Box::new(std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?)
-        }
-        (None, None) => bail!("give an input file, `-` for stdin, or --serial PORT"),
-    };
+    let (events_tx, events) = receive::channel();
+    open_links(args, events_tx)?;
     // First signal: stop, commit, summarise. A second one while that runs: exit at once.
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -234,11 +243,10 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         }
         base.watch();
     }
-    let chunks = spawn_reader(source);
-    let ending = pump_with(
+    let (ending, links) = pump_with(
         &mut base,
         store.as_mut().map(|s| s as &mut dyn MapStore),
-        &chunks,
+        &events,
         &options,
         |base, arrived| {
             if let Some(v) = &viewer {
@@ -248,20 +256,176 @@ pub fn run(args: &BaseStationArgs) -> Result<()> {
         },
     )?;
     if ending == Ending::Signal {
-        println!("stopped by a signal");
+        say!("stopped by a signal");
     }
     if let Some(v) = viewer {
         print_view_summary(&v.finish());
     }
     print_summary(&base);
+    print_links(&base, &links);
     let Some(map) = base.map() else {
         bail!("no session header with a {DIM}-dimensional configuration was received: nothing to keep");
     };
-    println!("global map: {} voxels", map.len());
+    say!("global map: {} voxels", map.len());
     if let Some(p) = &args.map {
-        println!("committed to {}", p.display());
+        say!("committed to {}", p.display());
     }
     show(map, &args.out, vocab.as_ref(), query.as_ref(), 0)
+}
+
+/// Open every input the options name and start reading them (each on its own thread, into `events`).
+/// Everything is opened before anything is read: a port that does not open fails the command at once.
+fn open_links(
+    args: &BaseStationArgs,
+    events: std::sync::mpsc::SyncSender<links::Event>,
+) -> Result<()> {
+    use std::os::unix::fs::FileTypeExt;
+    let ids = links::LinkIds::default();
+    let acks = !args.no_acks;
+    let one_way = |mut s: links::Source| {
+        if !acks {
+            s.write = None;
+        }
+        s
+    };
+    if args.inputs.is_empty() && args.serial.is_empty() && args.listen.is_none() && !args.stdio {
+        bail!(
+            "give an input (a recording, a pty, `-` for stdin), --serial PORT, --listen or --stdio"
+        );
+    }
+    let mut live = Vec::new();
+    for port in &args.serial {
+        let (path, baud) = match port.rsplit_once('@') {
+            Some((p, b)) => (
+                p,
+                b.parse::<u32>()
+                    .ok()
+                    .filter(|&b| b > 0)
+                    .with_context(|| format!("--serial {port}: `{b}` is not a baud rate"))?,
+            ),
+            None => (port.as_str(), args.baud),
+        };
+        let s = links::open_terminal(path, baud)
+            .with_context(|| format!("opening serial port {path}"))?;
+        live.push(one_way(s));
+    }
+    let mut files = Vec::new();
+    for p in &args.inputs {
+        if p.as_os_str() == "-" {
+            if args.stdio {
+                bail!("`-` and --stdio both read stdin: give one");
+            }
+            live.push(links::Source {
+                name: "stdin".into(),
+                read: Box::new(std::io::stdin()),
+                write: None,
+            });
+            continue;
+        }
+        let kind = std::fs::metadata(p)
+            .with_context(|| format!("opening {}", p.display()))?
+            .file_type();
+        if kind.is_char_device() {
+            // A pty or another terminal: raw mode, read and acknowledged.
+            let path = p
+                .to_str()
+                .with_context(|| format!("{}: not a UTF-8 path", p.display()))?;
+            let s = links::open_terminal(path, args.baud)
+                .with_context(|| format!("opening {}", p.display()))?;
+            live.push(one_way(s));
+        } else if kind.is_fifo() || kind.is_socket() {
+            let f = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
+            live.push(links::Source {
+                name: p.display().to_string(),
+                read: Box::new(f),
+                write: None,
+            });
+        } else {
+            let f = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
+            files.push((p.clone(), f));
+        }
+    }
+    if args.stdio {
+        REPORT_TO_STDERR.store(true, std::sync::atomic::Ordering::Relaxed);
+        live.push(one_way(links::Source {
+            name: "stdio".into(),
+            read: Box::new(std::io::stdin()),
+            write: Some(Box::new(std::io::stdout())),
+        }));
+    }
+    let listener = match args.listen {
+        Some(addr) => Some(
+            links::bind(addr).with_context(|| format!("--listen {addr}: cannot listen there"))?,
+        ),
+        None => None,
+    };
+    // Ids in the order given: recordings first (read one after another), then the live links.
+    if !files.is_empty() {
+        links::spawn_files(events.clone(), &ids, files);
+    }
+    for s in live {
+        links::spawn_link(events.clone(), &ids, s);
+    }
+    if let Some(l) = listener {
+        if let Ok(a) = l.local_addr() {
+            say!("listening on tcp {a} (each connection is a link)");
+        }
+        if acks {
+            links::spawn_listener(events, ids, l);
+        } else {
+            links::spawn_listener_one_way(events, ids, l);
+        }
+    }
+    Ok(())
+}
+
+/// One line per link: what it delivered and what it was sent back.
+fn print_links<const D: usize>(
+    base: &BaseStation<D>,
+    links: &std::collections::BTreeMap<super::LinkId, LinkReport>,
+) {
+    for (id, r) in links {
+        let l = base.link_stats(*id);
+        let s = l.receive;
+        let acks = if r.acknowledged {
+            format!(
+                "{} acknowledgements written{}",
+                l.acks,
+                if r.acks_dropped > 0 {
+                    format!(
+                        " ({} writes dropped: the link did not take them)",
+                        r.acks_dropped
+                    )
+                } else {
+                    String::new()
+                }
+            )
+        } else {
+            "no back channel".to_string()
+        };
+        let ended = match &r.ended {
+            None => String::new(),
+            Some(None) => "; ended".to_string(),
+            Some(Some(e)) => format!("; failed: {e}"),
+        };
+        say!(
+            "link {} ({}): {} bytes, {} frames applied ({} summaries merged, {} live), refused: {} damaged, {} other; {acks}{ended}",
+            id.0,
+            r.name,
+            l.bytes,
+            s.frames,
+            s.merged,
+            s.updated,
+            s.decoder.refused(),
+            s.rejected.version
+                + s.rejected.malformed
+                + s.rejected.wrong_config
+                + s.rejected.invalid_voxel
+                + s.rejected.duplicate_frames
+                + s.rejected.too_old
+                + s.rejected.no_session_room,
+        );
+    }
 }
 
 /// Run `host-sim map-info`.
@@ -271,7 +435,7 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
     let committed = snapshot.committed_at_ms;
     let base =
         BaseStation::<DIM>::restore(snapshot).with_context(|| args.db.display().to_string())?;
-    println!(
+    say!(
         "{}: map database schema {SCHEMA_VERSION}, voxel record {}, last commit {}",
         args.db.display(),
         super::global_map::VOXEL_RECORD_VERSION,
@@ -282,11 +446,11 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
         }
     );
     let Some(map) = base.map() else {
-        println!("no session configuration yet: empty");
+        say!("no session configuration yet: empty");
         return Ok(());
     };
     let c = map.config();
-    println!(
+    say!(
         "configuration: D = {}, voxel {} m, kernel length {} m, filter size {}, sub-voxel cells {}, prior λ₀ {} μ₀ {} Ψ₀ {}, codec {}-bit μ / {} Ψ blocks, feature space {:#010x}",
         c.dim, c.voxel_size, c.kernel_length, c.filter_size, c.subvoxel_cells, c.prior_lambda,
         c.prior_mean, c.prior_psi, c.codec.mean_bits, c.codec.psi_blocks, c.feature_space
@@ -294,7 +458,7 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
     let (live, closed) = map.voxels().fold((0usize, 0usize), |(l, c), (_, v)| {
         (l + v.live.len(), c + v.closed.len())
     });
-    println!(
+    say!(
         "observed voxels {}; contributions closed {closed}, live {live}; points Σn = {:.0}",
         map.len(),
         map.observed_points()
@@ -304,7 +468,7 @@ pub fn map_info(args: &MapInfoArgs) -> Result<()> {
         p.push(suffix);
         std::fs::metadata(p).map_or(0, |m| m.len())
     };
-    println!(
+    say!(
         "file {:.1} MiB (+ write-ahead log {:.1} MiB)",
         size("") as f64 / (1 << 20) as f64,
         size("-wal") as f64 / (1 << 20) as f64
@@ -327,7 +491,7 @@ pub fn map_query(args: &MapQueryArgs) -> Result<()> {
             args.db.display()
         );
     };
-    println!("{}: {} voxels", args.db.display(), map.len());
+    say!("{}: {} voxels", args.db.display(), map.len());
     if let Some(path) = &args.mcap {
         let view = ViewArgs {
             view: None,
@@ -342,7 +506,7 @@ pub fn map_query(args: &MapQueryArgs) -> Result<()> {
         ))?;
         v.push_map(map);
         let r = v.finish().recording.unwrap_or_default();
-        println!(
+        say!(
             "wrote {}: {} voxels in the scene, {} messages, {} bytes ({} on disk)",
             path.display(),
             r.voxels,

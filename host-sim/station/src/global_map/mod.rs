@@ -5,8 +5,14 @@
 //! robot's map, so different contributions are disjoint and are merged exactly (`ObsStats::merge` — the
 //! core's operation, not a second copy). Within one contribution, live updates replace each other (newest
 //! frame sequence number wins) and the final (evicted) summary closes it; its id is remembered, so a
-//! repeated or late copy is ignored instead of merged again. Settled contributions are folded into one
-//! set of statistics per voxel; only live ones are kept apart until they close.
+//! repeated or late copy is ignored instead of merged again.
+//!
+//! **Order-free, bit for bit.** Chan's merge is exact in real numbers but its f32 rounding depends on the
+//! order of the merges, and frames arrive in whatever order links, losses and re-sends give them (or robots
+//! on many links at once). So every closed contribution keeps its own statistics ([`Part`]), sorted by id,
+//! and a voxel's settled statistics are their fold in id order: the same set of frames gives the same bits
+//! whatever order it arrived in (a contribution that sorts last, the common case, is one merge; an earlier
+//! one refolds the voxel). Live contributions are kept apart, sorted by id, until they close.
 //!
 //! **Forgetting** (a session with a half-life, `latentbki::forget`): every contribution carries the tick of
 //! its last change, and merges follow the clock rule (both sides faded to the later stamp, then merged:
@@ -54,15 +60,32 @@ pub struct LiveContribution<const D: usize> {
     pub time: u32,
 }
 
+/// A closed contribution's own statistics (its final summary).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Part<const D: usize> {
+    /// Whose.
+    pub id: ContributionId,
+    /// What the robot observed in the voxel during that residency.
+    pub obs: ObsStats<D>,
+    /// Tick `obs` is as of when the session forgets, else 0.
+    pub time: u32,
+}
+
 /// One voxel of the global map.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GlobalVoxel<const D: usize> {
-    /// Every closed contribution, merged.
+    /// Every closed contribution, merged: `base`, then `parts` in id order (kept in step with them).
     pub settled: ObsStats<D>,
     /// Tick `settled` is as of when the session forgets (the latest stamp merged into it), else 0.
     pub settled_time: u32,
-    /// Ids of the closed contributions (their copies are ignored).
+    /// Ids of the closed contributions, sorted (their copies are ignored).
     pub closed: Vec<ContributionId>,
+    /// The closed contributions' own statistics, sorted by id: what `settled` is folded from.
+    pub parts: Vec<Part<D>>,
+    /// Statistics settled without their parts (records before version 4 kept only the sum), folded first.
+    pub base: ObsStats<D>,
+    /// Tick `base` is as of (forgetting), else 0.
+    pub base_time: u32,
     /// Open contributions, newest copy of each, sorted by id (the order they are merged in, so the merged
     /// statistics do not depend on the order frames arrived in).
     pub live: Vec<LiveContribution<D>>,
@@ -70,7 +93,7 @@ pub struct GlobalVoxel<const D: usize> {
 
 /// Version of [`GlobalVoxel::to_record`]'s layout. Change it (and [`GlobalVoxel::from_record`]) whenever
 /// what a voxel stores changes: a database holding another version is refused with a clear error.
-pub const VOXEL_RECORD_VERSION: u8 = 3;
+pub const VOXEL_RECORD_VERSION: u8 = 4;
 
 /// Why a stored voxel record could not be read.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -99,27 +122,88 @@ const fn stats_len(d: usize) -> usize {
 const ID_LEN: usize = 10;
 
 impl<const D: usize> GlobalVoxel<D> {
+    /// A voxel nothing contributed to yet.
+    pub const EMPTY: Self = Self {
+        settled: ObsStats::EMPTY,
+        settled_time: 0,
+        closed: Vec::new(),
+        parts: Vec::new(),
+        base: ObsStats::EMPTY,
+        base_time: 0,
+        live: Vec::new(),
+    };
+
+    /// Recompute `settled` from `base` and `parts` in id order (the canonical fold).
+    pub fn refold(&mut self, forgetting: Option<&Forgetting>) {
+        let mut s = Stamped {
+            obs: self.base,
+            time: self.base_time,
+        };
+        for p in &self.parts {
+            fold(&mut s, forgetting, p);
+        }
+        (self.settled, self.settled_time) = (s.obs, s.time);
+    }
+
+    /// Close contribution `part.id` with its final statistics (the caller checked it is not closed yet):
+    /// it takes its place in id order, and `settled` becomes the fold it would be had the parts arrived in
+    /// that order.
+    fn close(&mut self, part: Part<D>, forgetting: Option<&Forgetting>) {
+        let at = self.closed.binary_search(&part.id).unwrap_or_else(|i| i);
+        self.closed.insert(at, part.id);
+        let at = self
+            .parts
+            .binary_search_by_key(&part.id, |p| p.id)
+            .unwrap_or_else(|i| i);
+        self.parts.insert(at, part);
+        if at + 1 == self.parts.len() {
+            // Last in id order: one more step of the same fold.
+            let mut s = Stamped {
+                obs: self.settled,
+                time: self.settled_time,
+            };
+            fold(&mut s, forgetting, &part);
+            (self.settled, self.settled_time) = (s.obs, s.time);
+        } else {
+            self.refold(forgetting);
+        }
+    }
+
     /// The voxel as an opaque, versioned byte record (the unit the map's storage keeps per key): every f32
-    /// bit-exact and every list in memory order, so [`GlobalVoxel::from_record`] gives back an equal voxel
-    /// (records whose live list is out of order, as older builds wrote them, are read back sorted by id).
+    /// bit-exact and every list in id order, so [`GlobalVoxel::from_record`] gives back an equal voxel.
     ///
-    /// Layout (little-endian): version u8; settled n, m (D), S (D) as f32, settled tick u32; closed count
-    /// u32, then (robot u16, session u32, residency u32) each; live count u32, then (id, seq u32, n, m, S,
-    /// tick u32) each. Version 2 (no ticks) is still read, with ticks 0.
+    /// Layout (little-endian): version u8 (4); base flag u8, then if 1 the base's n, m (D), S (D) as f32 and
+    /// its tick u32; closed count u32, then (robot u16, session u32, residency u32) each; parts count u32,
+    /// then (id, n, m, S, tick u32) each; live count u32, then (id, seq u32, n, m, S, tick u32) each. The
+    /// settled statistics are not stored: they are the fold of base and parts. Versions 2 and 3 (settled
+    /// statistics and closed ids only; version 2 without ticks) are still read: their settled statistics
+    /// become the base.
     pub fn to_record(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(
-            1 + stats_len(D)
-                + 8
+            2 + stats_len(D)
                 + 4
+                + 12
                 + ID_LEN * self.closed.len()
+                + (ID_LEN + 4 + stats_len(D)) * self.parts.len()
                 + (ID_LEN + 8 + stats_len(D)) * self.live.len(),
         );
         out.push(VOXEL_RECORD_VERSION);
-        put_stats(&mut out, &self.settled);
-        out.extend_from_slice(&self.settled_time.to_le_bytes());
+        if self.base == ObsStats::EMPTY && self.base_time == 0 {
+            out.push(0);
+        } else {
+            out.push(1);
+            put_stats(&mut out, &self.base);
+            out.extend_from_slice(&self.base_time.to_le_bytes());
+        }
         out.extend_from_slice(&(self.closed.len() as u32).to_le_bytes());
         for id in &self.closed {
             put_id(&mut out, id);
+        }
+        out.extend_from_slice(&(self.parts.len() as u32).to_le_bytes());
+        for p in &self.parts {
+            put_id(&mut out, &p.id);
+            put_stats(&mut out, &p.obs);
+            out.extend_from_slice(&p.time.to_le_bytes());
         }
         out.extend_from_slice(&(self.live.len() as u32).to_le_bytes());
         for c in &self.live {
@@ -131,27 +215,48 @@ impl<const D: usize> GlobalVoxel<D> {
         out
     }
 
-    /// Read a record written by [`GlobalVoxel::to_record`]; refuse any other version, length or a
-    /// non-finite value.
-    pub fn from_record(bytes: &[u8]) -> Result<Self, RecordError> {
+    /// Read a record written by [`GlobalVoxel::to_record`] (or by a build of version 2 or 3); refuse any
+    /// other version, length, order or a non-finite value. `forgetting` is the map's (the fold needs it).
+    pub fn from_record(bytes: &[u8], forgetting: Option<&Forgetting>) -> Result<Self, RecordError> {
         let malformed = RecordError::Malformed {
             len: bytes.len(),
             dim: D,
         };
         let (&version, rest) = bytes.split_first().ok_or(malformed.clone())?;
-        if version != VOXEL_RECORD_VERSION && version != 2 {
+        if !(2..=VOXEL_RECORD_VERSION).contains(&version) {
             return Err(RecordError::Version(version));
         }
         let ticks = version >= 3;
         let tick = |r: &mut Cursor<'_>| if ticks { r.u32() } else { Some(0) };
         let mut r = Cursor(rest);
         let parse = |r: &mut Cursor<'_>| -> Option<Result<Self, RecordError>> {
-            let settled = r.stats::<D>()?;
-            let settled_time = tick(r)?;
+            let (base, base_time) = if version >= 4 {
+                match r.arr::<1>()? {
+                    [0] => (ObsStats::EMPTY, 0),
+                    [1] => (r.stats::<D>()?, r.u32()?),
+                    _ => return None,
+                }
+            } else {
+                (r.stats::<D>()?, tick(r)?)
+            };
             let n = r.count(ID_LEN)?;
             let mut closed = Vec::with_capacity(n);
             for _ in 0..n {
                 closed.push(r.id()?);
+            }
+            let mut parts = Vec::new();
+            if version >= 4 {
+                let n = r.count(ID_LEN + 4 + stats_len(D))?;
+                parts.reserve(n);
+                for _ in 0..n {
+                    let id = r.id()?;
+                    let obs = r.stats::<D>()?;
+                    parts.push(Part {
+                        id,
+                        obs,
+                        time: r.u32()?,
+                    });
+                }
             }
             let n = r.count(ID_LEN + 4 + 4 * usize::from(ticks) + stats_len(D))?;
             let mut live = Vec::with_capacity(n);
@@ -170,14 +275,28 @@ impl<const D: usize> GlobalVoxel<D> {
                 return None;
             }
             live.sort_by_key(|c: &LiveContribution<D>| c.id);
-            let finite = settled.is_valid() && live.iter().all(|c| c.obs.is_valid());
+            closed.sort_unstable();
+            // Parts are written in id order, each one closed: anything else is not this layout.
+            let sorted = parts.windows(2).all(|w| w[0].id < w[1].id)
+                && parts.iter().all(|p| closed.binary_search(&p.id).is_ok());
+            if !sorted {
+                return None;
+            }
+            let finite = base.is_valid()
+                && parts.iter().all(|p| p.obs.is_valid())
+                && live.iter().all(|c| c.obs.is_valid());
             Some(if finite {
-                Ok(GlobalVoxel {
-                    settled,
-                    settled_time,
+                let mut v = GlobalVoxel {
+                    settled: ObsStats::EMPTY,
+                    settled_time: 0,
                     closed,
+                    parts,
+                    base,
+                    base_time,
                     live,
-                })
+                };
+                v.refold(forgetting);
+                Ok(v)
             } else {
                 Err(RecordError::NotFinite)
             })
@@ -208,6 +327,27 @@ impl<const D: usize> GlobalVoxel<D> {
             }
         }
         p
+    }
+}
+
+/// One step of the settled fold: merge `part` (at the later stamp when the session forgets).
+fn fold<const D: usize>(s: &mut Stamped<D>, forgetting: Option<&Forgetting>, part: &Part<D>) {
+    let p = Stamped {
+        obs: part.obs,
+        time: part.time,
+    };
+    fold_stamped(s, forgetting, &p);
+}
+
+/// `s` ⊕ `other` (at the later stamp when the session forgets).
+fn fold_stamped<const D: usize>(
+    s: &mut Stamped<D>,
+    forgetting: Option<&Forgetting>,
+    other: &Stamped<D>,
+) {
+    match forgetting {
+        Some(f) => s.merge(f, other),
+        None => s.obs.merge(&other.obs),
     }
 }
 
@@ -366,9 +506,17 @@ impl<const D: usize> GlobalMap<D> {
         k
     }
 
-    /// Insert a voxel as stored (for loading a saved map).
+    /// Insert a voxel as stored (for loading a saved map). Its lists are put in id order and its settled
+    /// statistics refolded from base and parts; a voxel given with settled statistics but neither base nor
+    /// parts (settled the way records before version 4 were) keeps them as its base.
     pub fn insert_raw(&mut self, key: VoxelKey, mut voxel: GlobalVoxel<D>) {
         voxel.live.sort_by_key(|c| c.id);
+        voxel.closed.sort_unstable();
+        voxel.parts.sort_by_key(|p| p.id);
+        if voxel.parts.is_empty() && voxel.base == ObsStats::EMPTY {
+            (voxel.base, voxel.base_time) = (voxel.settled, voxel.settled_time);
+        }
+        voxel.refold(self.forgetting.as_ref());
         let m = voxel.merged_stamped(self.forgetting.as_ref());
         self.merged.set_stamped(key, &m.obs, m.time);
         if self.forgetting.is_some() {
@@ -416,13 +564,11 @@ impl<const D: usize> GlobalMap<D> {
         };
         let time = s.time.unwrap_or(0);
         let forgetting = self.forgetting;
-        let v = self.voxels.entry(s.key).or_insert_with(|| GlobalVoxel {
-            settled: ObsStats::EMPTY,
-            settled_time: 0,
-            closed: Vec::new(),
-            live: Vec::new(),
-        });
-        if v.closed.contains(&id) {
+        let v = self
+            .voxels
+            .entry(s.key)
+            .or_insert_with(|| GlobalVoxel::EMPTY);
+        if v.closed.binary_search(&id).is_ok() {
             return if s.is_final {
                 Applied::DuplicateFinal
             } else {
@@ -434,18 +580,12 @@ impl<const D: usize> GlobalMap<D> {
             if let Ok(i) = at {
                 v.live.remove(i);
             }
-            match &forgetting {
-                Some(f) => {
-                    let mut settled = Stamped {
-                        obs: v.settled,
-                        time: v.settled_time,
-                    };
-                    settled.merge(f, &Stamped { obs: s.obs, time });
-                    (v.settled, v.settled_time) = (settled.obs, settled.time);
-                }
-                None => v.settled.merge(&s.obs),
-            }
-            v.closed.push(id);
+            let part = Part {
+                id,
+                obs: s.obs,
+                time,
+            };
+            v.close(part, forgetting.as_ref());
             return Applied::Merged;
         }
         match at {
@@ -547,6 +687,9 @@ impl<const D: usize> ObsLookup<D> for GlobalMap<D> {
         self.observations(&key)
     }
 }
+
+mod merge;
+pub use merge::{config_difference, MergeError, MergeReport};
 
 #[cfg(test)]
 mod tests;
