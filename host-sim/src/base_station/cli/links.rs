@@ -3,7 +3,7 @@
 //! `--stdio`) and a TCP listener whose every connection is a link.
 //!
 //! Every link is read on its own thread and sends its bytes, tagged with its [`LinkId`], into one channel
-//! the receiving loop drains ([`super::receive`]); every link with a back channel has its own writer
+//! the receiving loop drains (module `receive`); every link with a back channel has its own writer
 //! thread fed through a short queue, so a link that stalls, dies or floods the line with garbage holds up
 //! only itself: the loop never blocks on a link, and an acknowledgement a stalled link cannot take is
 //! dropped and counted (the next one repeats it: it carries the session's whole state).

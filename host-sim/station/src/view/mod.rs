@@ -24,7 +24,7 @@
 //!
 //! **Clients**: the server is Foxglove's SDK behind a [`front`] door that also accepts the protocol's
 //! classic name `foxglove.websocket.v1`, which the SDK alone refuses (older Foxglove and Lichtblick).
-//! **Recording**: whole scenes at intervals, so that a reader that seeks sees the map ([`recording`]).
+//! **Recording**: whole scenes at intervals, so that a reader that seeks sees the map (module `recording`).
 //!
 //! **Flow.** Ingest never waits on the view: it copies the voxels a frame changed into an inbox (a map
 //! keyed by voxel, so a burst coalesces and the inbox never outgrows the map) under a lock held only for

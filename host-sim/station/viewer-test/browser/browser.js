@@ -13,7 +13,8 @@
 //      serving), types a query phrase in the Parameters panel, and takes `live.png`;
 //   3. reloads the page (a client reconnecting after the run) and checks the whole map again;
 //   4. recording: opens demo.mcap as a remote file (`recording-open.png`: the file must open on a map), then
-//      seeks by clicking the timeline at the middle and at the end (`recording-end.png`);
+//      seeks by clicking the timeline at the middle and at the end (`recording-middle.png`,
+//      `recording-end.png`; at the end the legend must count the demo's last scene);
 //   5. stops the demo with SIGINT (it must exit cleanly).
 // Pixel checks on each 3D panel (the screenshot's pixels of its canvas): the classes panel shows each class
 // that holds at least 2 % of the voxels in its legend colour (shading allowed: the colour times a factor),
@@ -183,9 +184,10 @@ async function setQuery(page, word) {
   return submit;
 }
 
-/** Click `submit` and time until the panel at `rect` repaints (5 % of its pixels change); ms, or null. */
+/** Click `submit` and time until the panel at `rect` repaints (5 % of the pixels of its middle 240 × 160
+ * change: a small clip, so that each poll is short); ms, or null. */
 async function timeRepaint(page, rect, submit) {
-  const clip = { x: rect.x, y: rect.y, width: rect.width, height: rect.height };
+  const clip = { x: rect.x + rect.width / 2 - 120, y: rect.y + rect.height / 2 - 80, width: 240, height: 160 };
   const before = PNG.sync.read(await page.screenshot({ clip }));
   const t0 = Date.now();
   await submit.click();
@@ -264,7 +266,10 @@ function crop(png, r) {
 
 const pct = (a, b) => (b ? (100 * a) / b : 0).toFixed(1);
 
-function checkClasses(label, png, rect, classes) {
+/** `partial`: a map mid-run, sparse, whose many cube edges blend with the background (neither class colour
+ * nor grey): it need fill less of the panel and fewer of its pixels are pure class colours. */
+function checkClasses(label, png, rect, classes, partial = false) {
+  const [fill, classed] = partial ? [0.05, 0.6] : [0.15, 0.75];
   const c = pixels(crop(png, rect), classes, [0xe8, 0xe8, 0xe8]);
   const total = classes.reduce((s, x) => s + x.voxels, 0);
   const wanted = classes.filter((x) => x.voxels >= 0.02 * total);
@@ -272,14 +277,14 @@ function checkClasses(label, png, rect, classes) {
   const shares = [...c.perClass].map(([n, k]) => `${n} ${pct(k, c.map)} %`).join(", ");
   check(
     `${label}: the map fills the classes panel`,
-    c.map >= 0.15 * c.all,
-    `${pct(c.map, c.all)} % of the panel's pixels are the map (≥ 15 %)`,
+    c.map >= fill * c.all,
+    `${pct(c.map, c.all)} % of the panel's pixels are the map (≥ ${100 * fill} %)`,
   );
   check(
     `${label}: class colours`,
-    seen.length === wanted.length && c.classed >= 0.75 * c.map,
+    seen.length === wanted.length && c.classed >= classed * c.map,
     `${seen.length} of ${wanted.length} classes with ≥ 2 % of the voxels seen in their legend colour; ` +
-      `${pct(c.classed, c.map)} % of the map's pixels are class colours (≥ 75 %): ${shares}`,
+      `${pct(c.classed, c.map)} % of the map's pixels are class colours (≥ ${100 * classed} %): ${shares}`,
   );
   check(
     `${label}: not black or grey`,
@@ -387,8 +392,8 @@ async function main() {
       repaint !== null,
       repaint === null
         ? "no repaint within 20 s"
-        : `"${phrase}" submitted → heat panel repainted in ${repaint} ms (polling screenshots of ≈ 0.3 s ` +
-            `each; SwiftShader's software WebGL)`,
+        : `"${phrase}" submitted → heat panel repainted in ${repaint} ms (polling screenshots of its middle; ` +
+            `SwiftShader's software WebGL)`,
     );
     await sleep(3000);
     let png = await shoot(page, "live.png");
@@ -418,9 +423,9 @@ async function main() {
       `${first.classed} class-coloured pixels at the file's start; legend ${recClasses.map((c) => c.voxels).join("/")} voxels`,
     );
     await seek(rec, 0.5);
-    png = PNG.sync.read(await rec.screenshot());
+    png = await shoot(rec, "recording-middle.png");
     [map] = await panels(rec);
-    checkClasses("recording, seek to the middle", png, map, await legend(rec));
+    checkClasses("recording, seek to the middle", png, map, await legend(rec), true);
     await seek(rec, 1.0);
     png = await shoot(rec, "recording-end.png");
     [map, heat] = await panels(rec);

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The map in a real viewer: Lichtblick's web build (the open-source Foxglove Studio) in headless Chromium, on
 # the live view of `host-sim demo --view` and on its `--record` recording, with checks on the 3D panels'
-# pixels and the app's alerts; writes docs/viewer/live.png, recording-open.png, recording-end.png
+# pixels and the app's alerts; writes docs/viewer/live.png, recording-open.png, -middle.png, -end.png
 # (browser.js says what it checks). Not in CI: the Lichtblick build comes from no registry CI reaches;
 # LICHTBLICK_TGZ names it (default: the copy this workplace keeps in /work/shared/viewer).
 # Installs Debian's chromium and the pinned npm packages if missing; takes ≈ 4 minutes (the demo runs once).
