@@ -33,8 +33,8 @@ type Robot = Mapper<D, CAP, P, 4096, 512>;
 
 /// Robot 1, session 1, a 2 m window around the sensor, 0.1 m voxels, ℓ = 0.5 m, f = 3; int8 features, a
 /// code c standing for c / 127.
-static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1))
-    .with_int8_features(1.0 / 127.0);
+static SETUP: Setup =
+    Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1)).with_int8_features(1.0 / 127.0);
 /// The map and the encoder (≈ 170 KiB) in `.bss`, configured in place (never on the stack).
 static MAPPER: ConstStaticCell<Robot> = ConstStaticCell::new(Robot::EMPTY);
 
