@@ -131,12 +131,6 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                     .codes
                     .merge_codes_fixed(c, &self.int8_fix, &mut self.dither)
             }
-            // A voxel seen before taking f32 points (unweighed, nothing to fade): decode, merge and
-            // re-encode in one pass (`QuantVoxel::merge_here`; bit for bit the three steps below). On an
-            // MCU without an FPU the three steps stay, the smaller code for a path its int8 points avoid.
-            (Acc::Float(o), true) if crate::quant::FPU && !weighed && !older => slot
-                .codes
-                .merge_here(o, &mut self.scratch, &mut self.dither),
             (acc, seen) if !acc.is_empty() => {
                 if seen {
                     slot.codes.decode_into(&mut self.scratch);

@@ -41,16 +41,8 @@ macro_rules! inline_with_fpu {
     };
 }
 
-/// Whether this target runs f32 on an FPU (not thumbv6m's `eabi`, not riscv32 without F): where it does not,
-/// f32 paths that are only for completeness there (f32 features on a soft-float MCU) stay the smallest code.
-pub const FPU: bool = !cfg!(any(
-    target_abi = "eabi",
-    all(target_arch = "riscv32", not(target_feature = "f"))
-));
-
 mod cooling;
 mod fixed;
-mod merge;
 mod weights;
 pub use cooling::Cooling;
 pub use fixed::Int8Fix;
@@ -268,7 +260,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// scatter bits as i32 (`scatter_max`: a negative value, sign bit set, never counts): the maxima are
     /// taken by whoever made the statistics, so a merge that makes them in one pass ([`Self::merge_here`])
     /// needs no second pass to find them.
-    #[inline(always)]
     fn encode_in<const FINE: bool>(
         &mut self,
         stats: &ObsStats<D>,
