@@ -15,8 +15,8 @@
 //! - A raw socket sends garbage, an unknown subscription and an oversized frame: refused and counted,
 //!   ingest unaffected. A client that subscribes and never reads leaves the database exactly as without it.
 //!
-//! Without node's packages (or Python's `mcap`) those checks are skipped with a note, except under
-//! `CI=true`, where `.ci/run`'s setup installs them and a missing one fails.
+//! Without node's packages (or Python's `mcap`) a check fails with the one line that installs them
+//! (`cargo xtask setup`, which the README's test command runs first): never a silent pass.
 
 mod stream_common;
 
@@ -44,11 +44,7 @@ fn viewer_test_dir() -> PathBuf {
 }
 
 fn required(what: &str) -> bool {
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("{what} is missing: .ci/run's setup installs it");
-    }
-    eprintln!("note: {what} is missing: that check is skipped (CI installs it)");
-    false
+    panic!("{what} is missing: run `cargo xtask setup`");
 }
 
 fn node_ready() -> bool {
