@@ -19,7 +19,6 @@
 //! twin's simulator, evaluation or command line (those stay in `host-sim`, which also holds the
 //! `base-station`, `map-info` and `map-query` commands built on this crate).
 #![forbid(unsafe_code)]
-#![forbid(unsafe_code)]
 
 mod base_station;
 pub mod export;

@@ -89,7 +89,7 @@ impl<const D: usize> BaseStation<D> {
     }
 
     /// Write the changes since the last commit to `store` in one transaction; then (with
-    /// [`AckPolicy::AfterCommit`]) release the acknowledgements of every frame handled so far, now durable.
+    /// [`AckPolicy::AfterCommit`](super::AckPolicy::AfterCommit)) release the acknowledgements of every frame handled so far, now durable.
     pub fn commit(&mut self, store: &mut dyn MapStore) -> Result<(), StoreError> {
         if self.has_changes() {
             store.commit(&self.changes())?;
