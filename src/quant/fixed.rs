@@ -253,8 +253,17 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let mut psi_max_bits = 0u32;
         // Built in place (no zeroing of 512 bytes first: `__aeabi_memclr4` was ≈ 30 instructions per point
         // on thumbv6m).
+        // A first visit of one point (most of a sparse sensor's coolings): its mean is its codes and its
+        // scatter 0, exactly what the merge below computes for it (m₀ = 0, x = Σc, m = x, t = 0), without
+        // the products.
+        let lone = n0 == 0 && n1 == 1;
         let merged: [(i32, u32); D] = core::array::from_fn(|i| {
             let (sum, sq) = (sums.sum(i), sums.square(i));
+            if lone {
+                let m = sum << MEAN_FRAC;
+                max_abs = max_abs.max(m.unsigned_abs());
+                return (m, 0);
+            }
             let (m0, m, x) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn);
             max_abs = max_abs.max(m.unsigned_abs());
             let old = old_units

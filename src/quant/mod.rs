@@ -245,17 +245,36 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     }
 
     fn reencode_in<const FINE: bool>(&mut self, stats: &ObsStats<D>, dither: &mut Dither) {
+        // Maxima on the bit patterns: for finite floats |a| < |b| ⟺ (bits & 0x7FFF_FFFF) orders the same as
+        // integers, and on a Cortex-M4 an integer compare-and-select is 4 instructions where a float one is 6
+        // (vcmp + vmrs + it + vmov) and `f32::max` is an `fmaxf` call.
+        let mean_max = max_magnitude_bits(&stats.mean);
+        let mut scatter_max = 0i32;
+        for &v in &stats.scatter {
+            scatter_max = scatter_max.max(v.to_bits() as i32);
+        }
+        self.encode_in::<FINE>(stats, mean_max, scatter_max, dither);
+    }
+
+    /// Encode `stats` given the largest `|mᵢ|` bits (`mean_max`, as [`max_magnitude_bits`]) and the largest
+    /// scatter bits as i32 (`scatter_max`: a negative value, sign bit set, never counts): the maxima are
+    /// taken by whoever made the statistics, so a merge that makes them in one pass ([`Self::merge_here`])
+    /// needs no second pass to find them.
+    fn encode_in<const FINE: bool>(
+        &mut self,
+        stats: &ObsStats<D>,
+        mean_max: u32,
+        scatter_max: i32,
+        dither: &mut Dither,
+    ) {
         let () = Self::CHECK;
         let (keep_within, headroom) = if FINE {
             (FINE_KEEP, FINE_HEADROOM)
         } else {
             (4.0, 1.25)
         };
-        // Maxima on the bit patterns: for finite floats |a| < |b| ⟺ (bits & 0x7FFF_FFFF) orders the same as
-        // integers, and on a Cortex-M4 an integer compare-and-select is 4 instructions where a float one is 6
-        // (vcmp + vmrs + it + vmov) and `f32::max` is an `fmaxf` call. Clamped to f32::MAX: non-finite
-        // inputs (never passed by callers) cannot make a non-finite scale.
-        let max_abs = f32::from_bits(max_magnitude_bits(&stats.mean));
+        // Clamped to f32::MAX: non-finite inputs (never passed by callers) cannot make a non-finite scale.
+        let max_abs = f32::from_bits(mean_max.min(f32::MAX.to_bits()));
         let qmax = MU_QMAX as f32;
         let prev = self.mu_scale.to_f32();
         let keep = prev > 0.0 && max_abs <= prev * qmax && max_abs * keep_within >= prev * qmax;
@@ -273,25 +292,25 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
 
         // S ≥ 0, and a negative value (sign bit set) must not count: as i32 it is negative.
-        let mut psi_max_bits = 0i32;
-        for &v in &stats.scatter {
-            let b = v.to_bits() as i32;
-            if b > psi_max_bits {
-                psi_max_bits = b;
-            }
-        }
-        let psi_max_bits = (psi_max_bits as u32).min(f32::MAX.to_bits());
+        let psi_max_bits = (scatter_max.max(0) as u32).min(f32::MAX.to_bits());
+        // Every scatter 0 (a voxel of one point, most of a sparse sensor's first visits): every code is 0
+        // on base 0 (a key below one step), so the section is left zero and no code is computed.
+        let scatter_codes = psi_max_bits != 0;
         let top = (psi_max_bits >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
-        // |μᵢ · inv| ≤ q_max, so μᵢ · inv + u + OFFSET is positive and truncation is floor: no floorf call.
-        const OFFSET: f32 = (2 * MU_QMAX + 2) as f32;
-        const U8: f32 = 1.0 / 256.0;
+        // Stochastic rounding in 1/256 of a step: ⌊(⌊256·(μᵢ·inv + OFFSET) + ½⌋ + k) / 256⌋ with k the dither
+        // byte, which is ⌊μᵢ·inv + OFFSET + (k + ½)/256⌋ exactly (k is an integer) — the dither added as an
+        // integer (one `uxtab` on a Cortex-M4) instead of built as a float (five instructions a code).
+        // |μᵢ · inv| ≤ q_max, so the sum is positive and truncation is floor: no floorf call.
+        const OFFSET: i32 = 2 * MU_QMAX + 2;
+        const OFFSET_256: f32 = (OFFSET * 256) as f32 + 0.5;
+        let inv_256 = inv * 256.0;
         // Clamps written as signed clamps to a power-of-two range so a Cortex-M4 does each in one `ssat` /
         // `usat`. μ: −32 cannot occur (|μᵢ · inv| ≤ q_max and u ≥ 1/512), and would decode fine.
         let mu_code = |v: f32, dither: u32| {
-            let u = (f32::from(dither as u8) + 0.5) * U8;
-            let q = (v * inv + u + OFFSET) as i32 - OFFSET as i32;
+            let q =
+                ((v * inv_256 + OFFSET_256) as i32 + (dither & 0xFF) as i32 - OFFSET * 256) >> 8;
             q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
         };
         let base = i32::from(psi_base);
@@ -307,10 +326,14 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             |j: u32, m: (f32, Option<f32>), p: (f32, Option<f32>), acc: &mut (u64, u64)| {
                 let d = dither.next();
                 acc.0 |= u64::from(mu_code(m.0, d)) << (2 * j * MU_BITS);
-                acc.1 |= u64::from(psi_code(p.0, d >> 8)) << (2 * j * PSI_BITS);
+                if scatter_codes {
+                    acc.1 |= u64::from(psi_code(p.0, d >> 8)) << (2 * j * PSI_BITS);
+                }
                 if let (Some(m1), Some(p1)) = (m.1, p.1) {
                     acc.0 |= u64::from(mu_code(m1, d >> 16)) << ((2 * j + 1) * MU_BITS);
-                    acc.1 |= u64::from(psi_code(p1, d >> 24)) << ((2 * j + 1) * PSI_BITS);
+                    if scatter_codes {
+                        acc.1 |= u64::from(psi_code(p1, d >> 24)) << ((2 * j + 1) * PSI_BITS);
+                    }
                 }
             };
         let (mu_part, psi_part) = self.codes.split_at_mut(section_len(D, MU_BITS));
@@ -551,10 +574,11 @@ mod tests {
         let fused = prev.reencode(stats, &mut d0);
         let (scale, base) = (fused.mu_scale.to_f32(), i32::from(fused.psi_base));
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
-        const OFFSET: f32 = (2 * MU_QMAX + 2) as f32;
+        const OFFSET: i32 = 2 * MU_QMAX + 2;
+        let inv_256 = inv * 256.0;
         let mu_code = |v: f32, d: u32| {
-            let u = (f32::from(d as u8) + 0.5) / 256.0;
-            let q = (v * inv + u + OFFSET) as i32 - OFFSET as i32;
+            let fine = (v * inv_256 + ((OFFSET * 256) as f32 + 0.5)) as i32;
+            let q = (fine + (d & 0xFF) as i32) / 256 - OFFSET;
             q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
         };
         let psi_code = |v: f32, d: u32| {

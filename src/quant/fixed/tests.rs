@@ -203,3 +203,38 @@ fn many_coolings_do_not_drift() {
         "scatter drifted: {fixed} (f32 path {in_f32})"
     );
 }
+
+/// A first visit of one point (the lone-point step of the merge): count 1, scatter exactly 0, each mean
+/// within one code step of the point's value and unbiased over the dither.
+#[test]
+fn a_lone_first_point_codes_its_value() {
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(0x0BAD_5EED);
+    let mut dither = Dither::new(17);
+    for trial in 0..60 {
+        let offset = (rng.next() % 120) as i32 - 60;
+        let sums = rng.sums(1, offset);
+        let y = sums.to_obs(S);
+        // 200 draws: the mean of a stochastic rounding has a spread ≤ 0.5/√200 ≈ 0.035 steps.
+        let (mut sum, runs) = ([0.0f64; D], 200);
+        let mut step = 0.0f32;
+        for _ in 0..runs {
+            let q = QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(&sums, &fix, &mut dither);
+            step = q.mu_scale.to_f32();
+            let back = q.decode();
+            assert_eq!(back.count, 1.0, "trial {trial}");
+            assert!(back.scatter.iter().all(|&s| s == 0.0), "trial {trial}");
+            for d in 0..D {
+                assert!(
+                    (back.mean[d] - y.mean[d]).abs() <= step * 1.001,
+                    "trial {trial} mean[{d}]"
+                );
+                sum[d] += f64::from(back.mean[d]);
+            }
+        }
+        for d in 0..D {
+            let bias = (sum[d] / runs as f64 - f64::from(y.mean[d])).abs() / f64::from(step);
+            assert!(bias < 0.2, "trial {trial} mean[{d}]: bias {bias} steps");
+        }
+    }
+}
