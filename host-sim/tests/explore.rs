@@ -76,7 +76,7 @@ fn house_one() -> (
     let dec = host_sim::eval::experiment::decoding(
         &Vocabulary::builtin(),
         &train,
-        &host_sim::eval::experiment::Setup::default(),
+        &host_sim::eval::experiment::ExperimentSettings::default(),
     )
     .unwrap();
     let truth = Truth::from_loop(&scene, &config);

@@ -291,7 +291,7 @@ fn a_robot_on_the_constants_streams_classes_the_base_station_decodes_with_the_np
     );
 
     // Voxel by voxel: every clear surface voxel decodes to its class.
-    let map = host_sim::base_station::cli::read_map(&db).unwrap();
+    let map = host_sim::cli::station::read_map(&db).unwrap();
     let map = map.map().expect("a map");
     assert_eq!(map.config().feature_space, FEATURE_SPACE);
     let table = host_sim::sim::vocab::Vocabulary::builtin();

@@ -5,7 +5,7 @@
 
 use host_sim::changing::changed;
 use host_sim::demo_radio::CODEC;
-use host_sim::eval::experiment::{decoding, Setup as EvalSetup};
+use host_sim::eval::experiment::{decoding, ExperimentSettings};
 use host_sim::sim::indoor::{self, IndoorRun, IndoorScene};
 use host_sim::sim::mix_all;
 use host_sim::sim::sensor::DepthCamera;
@@ -57,9 +57,9 @@ fn decayed_statistics_at_the_base_station_equal_the_robots() {
     let dec = decoding(
         &Vocabulary::builtin(),
         &train,
-        &EvalSetup {
+        &ExperimentSettings {
             seed,
-            ..EvalSetup::default()
+            ..ExperimentSettings::default()
         },
     )
     .unwrap();
@@ -127,7 +127,7 @@ fn decayed_statistics_at_the_base_station_equal_the_robots() {
     // The base station's, from the bytes.
     let mut base = BaseStation::<D>::adopting();
     base.receive(link);
-    assert_eq!(base.stats().rejected.invalid_voxel, 0);
+    assert_eq!(base.stats().refused.invalid_voxel, 0);
     let mut map = base.into_map().expect("a session");
     assert_eq!(
         map.forgetting(),

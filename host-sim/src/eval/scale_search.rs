@@ -31,8 +31,8 @@
 //! so it is scored only when `--filter-size` allows it: `--filter-size` is the largest filter the robot
 //! affords. Score: the mean of validation accuracy and mIoU (unknown counts as wrong, as in the test).
 
-use super::experiment::Setup;
-use super::methods::{Decoder, EncodedFrame, Feature, LatentBki, Mapper, D};
+use super::experiment::ExperimentSettings;
+use super::methods::{Decoder, EncodedFrame, Feature, LatentBki, MappingMethod, D};
 use super::metrics::Confusion;
 use crate::sim::scale::preferred;
 use crate::sim::{mix_all, unit};
@@ -56,7 +56,7 @@ pub struct SplitFrame {
     pub points: Vec<[f32; 3]>,
     /// Their true classes.
     pub classes: Vec<u16>,
-    /// Their own features (unused by the maps; kept for the [`Mapper::predict`] signature).
+    /// Their own features (unused by the maps; kept for the [`MappingMethod::predict`] signature).
     pub features: Vec<Feature>,
 }
 
@@ -222,7 +222,7 @@ pub fn choose(
     base: &MapConfig,
     decoder: &Decoder,
     classes: usize,
-    setup: &Setup,
+    setup: &ExperimentSettings,
     fits_device: &(dyn Fn(&MapConfig) -> bool + Sync),
 ) -> anyhow::Result<Choice> {
     anyhow::ensure!(!candidates.is_empty(), "no candidate scale to score");
@@ -256,7 +256,7 @@ pub fn choose_uncached(
     base: &MapConfig,
     decoder: &Decoder,
     classes: usize,
-    setup: &Setup,
+    setup: &ExperimentSettings,
     fits_device: &(dyn Fn(&MapConfig) -> bool + Sync),
 ) -> anyhow::Result<Choice> {
     anyhow::ensure!(!candidates.is_empty(), "no candidate scale to score");

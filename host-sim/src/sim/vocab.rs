@@ -9,6 +9,10 @@ use std::fmt;
 /// Dimension of the committed text embeddings.
 pub const FULL_DIM: usize = 384;
 
+/// The dimension the PCA compresses them to: every host map's, the demo robot's and the base station's
+/// features (the paper's 64; the wire's D). Defined once on the host.
+pub const D: usize = 64;
+
 const TABLE: &str = include_str!("../../data/text-embeddings.tsv");
 
 /// Phrases and their unit-length embeddings, in file order.
