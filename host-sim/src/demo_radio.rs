@@ -66,6 +66,8 @@ struct RobotAccount {
     resent_bytes: u64,
     /// Points its map refused (counted by reason; e.g. no room while the link could not keep up).
     refused: latentbki::RejectionCounts,
+    /// Whether its map's mean codes are weighed (`mean-weights`).
+    weighed: bool,
 }
 
 /// The air between robot and base station, the base station, and the account of the run.
@@ -190,6 +192,7 @@ impl DemoRadio {
             stats: robot.encoder().stats(),
             resent_bytes: u64::from(robot.encoder().resent_bytes()),
             refused: robot.map().rejections(),
+            weighed: !robot.map().mean_weights().is_ones(),
         });
     }
 
@@ -300,6 +303,24 @@ impl DemoRadio {
             r.total() - r.no_room - r.outside_window
         );
         let c = self.config.codec;
+        // The optional `latentbki` features the robot's setup uses, against the boards' build.
+        let used: Vec<&str> = [("rice-codes", c.is_rice()), ("mean-weights", robot.weighed)]
+            .into_iter()
+            .filter_map(|(f, on)| on.then_some(f))
+            .collect();
+        let boards = latentbki_selftest::BOARD_FEATURES;
+        out += &if used == boards {
+            format!(
+                "robot features: {} (exactly the boards' build, `latentbki-selftest/full`)\n",
+                used.join(", ")
+            )
+        } else {
+            format!(
+                "robot features: {} (NOT the boards' build: {})\n",
+                used.join(", "),
+                boards.join(", ")
+            )
+        };
         out += &if c.is_rice() {
             format!(
                 "summary codec: Rice-coded heads and means (a lead band of {}), scatter in {} blocks\n",
