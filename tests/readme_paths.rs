@@ -190,7 +190,7 @@ fn the_check_sees_a_stale_name() {
         "quant/",
         "sampling/",
         "frame/encoder/",
-        "wire/codec.rs",
+        "wire/codec/",
         "receiver.rs",
     ] {
         assert!(found(real), "{real}");

@@ -1,5 +1,5 @@
-//! `host-sim eval --scene changing`: a house whose furniture changes class mid-run, mapped with and without
-//! forgetting ([`latentbki::forget`]).
+//! A house whose furniture changes class mid-run, mapped with and without forgetting
+//! ([`latentbki::forget`]); `host-sim eval --scene changing` runs it.
 //!
 //! Why this scene: a static map keeps voting for what a place *was*. The robot drives the scripted loop of
 //! the house; after three loops every piece of furniture in the first room the loop visits (where the
@@ -18,7 +18,7 @@ use crate::eval::methods::D;
 use crate::explore::Truth;
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, INDOOR_CLASSES};
 use crate::sim::sensor::DepthCamera;
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use crate::sim::{mix_all, Sequence};
 use crate::ObsMap;
 use anyhow::{ensure, Result};
@@ -128,7 +128,7 @@ pub fn run(layout_seed: u64, seed: u64, pixels: usize, half_life: Option<u32>) -
         seed,
         ..ExperimentSettings::default()
     };
-    let dec = decoding(&Vocabulary::builtin(), &train, &setup)?;
+    let dec = decoding(&TextEmbeddings::builtin(), &train, &setup)?;
 
     // Ground truth after the change, split by whether the class changed.
     let truth_before = Truth::from_loop(&before, &config);

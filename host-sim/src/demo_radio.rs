@@ -443,7 +443,7 @@ impl Radio for DemoRadioLink {
                 Box::new(pca.clone()),
             ));
             // The heat layer starts on the query the demo pictures; a viewer types another.
-            let table = crate::sim::vocab::Vocabulary::builtin();
+            let table = crate::sim::vocab::TextEmbeddings::builtin();
             if let Some(q) = crate::eval::scenes::tile_query(classes, &table) {
                 v.set_phrase(&q);
             }

@@ -1,5 +1,5 @@
-//! `host-sim feature-space --classes floor,wall,sofa --out DIR`: the feature space a new robot's classes
-//! live in, for both ends of the link.
+//! The feature space a new robot's classes live in, for both ends of the link (written by `host-sim
+//! feature-space --classes floor,wall,sofa --out DIR`, [`crate::cli::feature_space`]):
 //!
 //! - `DIR/pca.npz` — the projection 384 → 64 (`mean`, `components`) the base station decodes with
 //!   (`map-query --pca DIR/pca.npz --classes …`); its CRC-32 is the feature-space id the robot declares.
@@ -19,7 +19,7 @@
 //! [`latentbki::classes`]'s.
 
 use crate::npy_io::write_pca_npz;
-use crate::sim::vocab::{Vocabulary, FULL_DIM};
+use crate::sim::vocab::{TextEmbeddings, FULL_DIM};
 use anyhow::{bail, Context, Result};
 use latentbki::classes::ClassPrototypes;
 use latentbki::decode::{Codebook, Pca};
@@ -49,7 +49,7 @@ pub struct FeatureSpace {
 impl FeatureSpace {
     /// Fit the space for `classes` (embeddings from the committed table, or the encoder).
     pub fn new(classes: &[String]) -> Result<Self> {
-        let table = Vocabulary::builtin();
+        let table = TextEmbeddings::builtin();
         if classes.is_empty() {
             bail!("--classes: no class given");
         }
@@ -209,7 +209,7 @@ impl FeatureSpace {
 }
 
 /// The classes' embeddings: from the committed table, else (feature `encoder`) from the text encoder.
-fn class_embeddings(table: &Vocabulary, classes: &[String]) -> Result<Vec<[f32; FULL_DIM]>> {
+fn class_embeddings(table: &TextEmbeddings, classes: &[String]) -> Result<Vec<[f32; FULL_DIM]>> {
     let unknown: Vec<&str> = classes
         .iter()
         .map(|c| c.trim())

@@ -4,7 +4,7 @@
 
 use host_sim::eval::experiment::{self, ExperimentSettings, Inputs, Method};
 use host_sim::eval::scenes::{self, SceneKind, SceneOptions, SceneSource};
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::sim::vocab::TextEmbeddings;
 
 fn small() -> SceneOptions {
     SceneOptions {
@@ -47,7 +47,7 @@ fn running_mean_equals_latentbki_f1_and_device_tracks_f32() {
     let source = SceneSource::new(SceneKind::Tile, &options, setup.seed).unwrap();
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup).unwrap();
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup).unwrap();
     let frames = experiment::encode(&test, &dec, &setup);
     let held: usize = frames.iter().map(|f| f.held_points.len()).sum();
     let all: usize = frames

@@ -84,7 +84,7 @@ fn feature<const D: usize>(class: u16, i: usize, offset: f32) -> [f32; D] {
 }
 
 fn scene_equivalence(scene: SceneKind) {
-    const D: usize = 64;
+    use host_sim::sim::vocab::D;
     let options = SceneOptions {
         tile_frames: 20,
         ..SceneOptions::default()

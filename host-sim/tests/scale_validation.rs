@@ -7,7 +7,7 @@ use host_sim::eval::experiment::{self, ExperimentSettings};
 use host_sim::eval::methods::EncodedFrame;
 use host_sim::eval::scale_search::{self, Candidate, Choice};
 use host_sim::eval::scenes::{SceneKind, SceneOptions, SceneSource};
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::sim::vocab::TextEmbeddings;
 use latentbki::MapConfig;
 
 fn frames() -> (Vec<EncodedFrame>, experiment::Decoding, ExperimentSettings) {
@@ -19,7 +19,7 @@ fn frames() -> (Vec<EncodedFrame>, experiment::Decoding, ExperimentSettings) {
     let setup = ExperimentSettings::default();
     let source = SceneSource::new(SceneKind::Tile, &options, setup.seed).unwrap();
     let (train, test) = source.train_and_test().unwrap();
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup).unwrap();
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup).unwrap();
     let frames = experiment::encode(&test, &dec, &setup);
     (frames, dec, setup)
 }

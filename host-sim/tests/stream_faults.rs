@@ -14,7 +14,7 @@ use latentbki::{
 };
 use std::collections::{BTreeMap, BTreeSet};
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 
 fn config() -> SessionConfig {
     SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, 0x1234_5678)

@@ -12,7 +12,7 @@ pub type StationViewer = Viewer<D, VOCAB_CAP>;
 
 /// One phrase's embedding: the built-in table's, else (with the `encoder` feature) the text encoder's.
 fn embed(phrase: &str) -> Result<[f32; FULL], String> {
-    let table = crate::sim::vocab::Vocabulary::builtin();
+    let table = crate::sim::vocab::TextEmbeddings::builtin();
     match table.get(phrase) {
         Ok(e) => Ok(*e),
         #[cfg(feature = "encoder")]

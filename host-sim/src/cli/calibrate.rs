@@ -8,7 +8,7 @@ use crate::eval::experiment::{self, ExperimentSettings};
 use crate::eval::methods::D;
 use crate::eval::scenes::{SceneKind, SceneOptions, SceneSource};
 use crate::sim::tile::{significant, Tile};
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use anyhow::{ensure, Result};
 use clap::Args;
 use latentbki::local_map::{LocalMap, MAX_WINDOW_VOXELS};
@@ -146,7 +146,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
     };
     let mut source = SceneSource::new(SceneKind::Tile, &options, args.seed)?;
     let (train, test) = source.train_and_test()?;
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup)?;
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup)?;
     let frames = experiment::encode(&test, &dec, &setup);
     let (chosen, choice) = source.resolve_config(&frames, &dec, &setup)?;
     let config = if choice.is_some() {

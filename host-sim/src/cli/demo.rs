@@ -7,7 +7,7 @@ use crate::cli_args::{MapArgs, TileArgs};
 use crate::eval::experiment::{self, ExperimentSettings, Method};
 use crate::eval::methods::Radio;
 use crate::eval::scenes::{self, SceneKind, SceneOptions, SceneSource};
-use crate::sim::vocab::{Vocabulary, D};
+use crate::sim::vocab::{TextEmbeddings, D};
 use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
@@ -53,7 +53,7 @@ pub fn demo_config(args: &DemoArgs) -> Result<latentbki::MapConfig> {
     }
     let setup = demo_setup(args);
     let (train, test) = source.train_and_test()?;
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup)?;
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup)?;
     let frames = experiment::encode(&test, &dec, &setup);
     Ok(source.resolve_config(&frames, &dec, &setup)?.0)
 }

@@ -4,7 +4,7 @@
 use crate::cli_args::{MapArgs, TileArgs};
 use crate::eval::experiment::ExperimentSettings;
 use crate::eval::scenes::{self, Report, SceneKind, SceneOptions};
-use crate::sim::vocab::{Vocabulary, D};
+use crate::sim::vocab::{TextEmbeddings, D};
 use anyhow::{ensure, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
@@ -164,7 +164,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             args.points
         );
     }
-    let vocab = Vocabulary::builtin();
+    let vocab = TextEmbeddings::builtin();
     for q in &args.queries {
         vocab.get(q)?;
     }

@@ -9,7 +9,7 @@ use crate::explore::{
 use crate::sim::indoor::{self, IndoorRun, IndoorScene};
 use crate::sim::mix_all;
 use crate::sim::sensor::DepthCamera;
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -124,7 +124,7 @@ fn house(args: &ExploreArgs, layout: u64, png: &str) -> Result<Outcome> {
             seed,
             ..ExperimentSettings::default()
         };
-        let dec = decoding(&Vocabulary::builtin(), &train_seq, &setup)?;
+        let dec = decoding(&TextEmbeddings::builtin(), &train_seq, &setup)?;
         let results: Vec<Result<Vec<Sample>>> = std::thread::scope(|s| {
             let handles: Vec<_> = Planner::ALL
                 .iter()

@@ -116,7 +116,7 @@ fn run() -> Result<()> {
         Command::EmbedVocab(args) => {
             let phrases = if args.phrases.is_empty() {
                 // The committed phrases in their order, then any ASPRS class name the table lacks.
-                let mut phrases = crate::sim::vocab::Vocabulary::builtin().phrases();
+                let mut phrases = crate::sim::vocab::TextEmbeddings::builtin().phrases();
                 for p in crate::sim::tile::asprs_phrases() {
                     if !phrases.iter().any(|q| q == p) {
                         phrases.push(p.to_string());

@@ -8,7 +8,7 @@ use crate::eval::experiment::{self, ExperimentSettings, Method};
 use crate::eval::figures::{self, TopDown};
 use crate::eval::methods::Decoder;
 use crate::eval::scenes::{SceneKind, SceneOptions, SceneSource};
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use anyhow::{bail, ensure, Context, Result};
 
 /// `query`: map a scene with the device map and show where the text matches.
@@ -24,7 +24,7 @@ pub fn query(args: &QueryArgs) -> Result<()> {
     let dir = args.out.join(scene.name());
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("--out: cannot create the folder {}", dir.display()))?;
-    let vocab = Vocabulary::builtin();
+    let vocab = TextEmbeddings::builtin();
     let embedding = match vocab.get(&args.text) {
         Ok(e) => *e,
         // Built with the `encoder` feature, any text works: embed it now.

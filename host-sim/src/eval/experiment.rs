@@ -19,9 +19,9 @@ use super::methods::{
     Radio, RunningMean, SegmentationOnly, D,
 };
 use super::metrics::Confusion;
-use super::sparsification::Scored;
+use super::sparsification::ScoredPoint;
 use crate::sim::encoder::{Encoder, NoiseModel};
-use crate::sim::vocab::{Vocabulary, FULL_DIM};
+use crate::sim::vocab::{TextEmbeddings, FULL_DIM};
 use crate::sim::{mix_all, pca, unit, Sequence};
 use indicatif::ProgressBar;
 use latentbki::{
@@ -84,7 +84,7 @@ pub struct Decoding {
 
 /// Fit the PCA on `train` (encoded with a seed of its own) and build the codebook.
 pub fn decoding(
-    vocab: &Vocabulary,
+    vocab: &TextEmbeddings,
     train: &Sequence,
     setup: &ExperimentSettings,
 ) -> anyhow::Result<Decoding> {
@@ -244,7 +244,7 @@ pub struct MethodResult {
     /// Wall time of integration and evaluation, seconds.
     pub seconds: f64,
     /// Per held-out point uncertainties (only for the method asked to score them).
-    pub scored: Vec<Scored>,
+    pub scored: Vec<ScoredPoint>,
     /// The final map.
     pub mapper: Box<dyn MappingMethod>,
 }
@@ -383,7 +383,7 @@ pub(super) fn run_one(
                     if let Some(u) =
                         uncertainties(&v, &dec.decoder, pred, setup.sampling_draws, &mut sampler)
                     {
-                        scored.push(Scored {
+                        scored.push(ScoredPoint {
                             truth: *c,
                             predicted: pred as u16,
                             e_opt: u.e_tvar,

@@ -10,7 +10,7 @@ use super::runner;
 use super::scenes::{tile_query, SceneKind, SceneOptions, SceneSource};
 use super::sparsification::{self, Sparsification};
 use super::sweep::{Sweep, SweepPoint};
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -41,7 +41,7 @@ pub fn run(
     sweep: bool,
     link: Option<Box<dyn Radio>>,
 ) -> Result<Report> {
-    let vocab = Vocabulary::builtin();
+    let vocab = TextEmbeddings::builtin();
     let mut source = SceneSource::new(scene, options, setup.seed)?;
     let (train, test) = source.train_and_test()?;
     let dec = experiment::decoding(&vocab, &train, setup)?;

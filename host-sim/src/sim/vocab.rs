@@ -17,7 +17,7 @@ const TABLE: &str = include_str!("../../data/text-embeddings.tsv");
 
 /// Phrases and their unit-length embeddings, in file order.
 #[derive(Clone, Debug)]
-pub struct Vocabulary {
+pub struct TextEmbeddings {
     entries: Vec<(String, Box<[f32; FULL_DIM]>)>,
 }
 
@@ -43,7 +43,7 @@ impl fmt::Display for UnknownWord {
 
 impl std::error::Error for UnknownWord {}
 
-impl Vocabulary {
+impl TextEmbeddings {
     /// The table compiled into the binary.
     pub fn builtin() -> Self {
         Self::parse(TABLE).expect("the committed embedding table is well formed")
@@ -82,7 +82,7 @@ impl Vocabulary {
     }
 
     /// Add `other`'s phrases that this table lacks (e.g. a feature space's `vocabulary.tsv`).
-    pub fn extend(&mut self, other: Vocabulary) {
+    pub fn extend(&mut self, other: TextEmbeddings) {
         for (phrase, v) in other.entries {
             if !self.entries.iter().any(|(p, _)| *p == phrase) {
                 self.entries.push((phrase, v));

@@ -56,12 +56,12 @@ pub(super) fn read_vocabulary(
 /// The phrases words are looked up in: the committed table, plus the classes of a feature space written by
 /// `host-sim feature-space` (its `vocabulary.tsv`, beside the `--pca` file), which may be words the
 /// committed table lacks.
-fn read_table(pca: &Path) -> Result<crate::sim::vocab::Vocabulary> {
-    let mut table = crate::sim::vocab::Vocabulary::builtin();
+fn read_table(pca: &Path) -> Result<crate::sim::vocab::TextEmbeddings> {
+    let mut table = crate::sim::vocab::TextEmbeddings::builtin();
     let beside = pca.with_file_name("vocabulary.tsv");
     if beside.is_file() {
         let text = std::fs::read_to_string(&beside)?;
-        let extra = crate::sim::vocab::Vocabulary::parse(&text)
+        let extra = crate::sim::vocab::TextEmbeddings::parse(&text)
             .map_err(|e| anyhow::anyhow!("{}: {e}", beside.display()))?;
         table.extend(extra);
     }

@@ -18,7 +18,7 @@ use crate::cli_args::{MapArgs, ScaleArg, TileArgs};
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, IndoorSensor};
 use crate::sim::sensor::{DepthCamera, MultizoneTof, RangeLidar};
 use crate::sim::tile::{self, significant, survey, Tile, TileRun};
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use crate::sim::{flight_plan, scale};
 use crate::sim::{mix_all, Sequence};
 use anyhow::{bail, Context, Result};
@@ -63,7 +63,7 @@ impl SceneKind {
 /// The query pictured on a tile: a word for one of the classes the tile has — another word than the class
 /// name where the vocabulary has one (the open-vocabulary case: "house" finds buildings), in this order of
 /// preference — else the name of its first named class; `None` when every class is a user code.
-pub fn tile_query(classes: &[String], vocab: &Vocabulary) -> Option<String> {
+pub fn tile_query(classes: &[String], vocab: &TextEmbeddings) -> Option<String> {
     const SYNONYMS: [(&str, &str); 11] = [
         ("building", "house"),
         ("high vegetation", "tree"),

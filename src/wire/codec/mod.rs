@@ -18,6 +18,14 @@ use crate::obs::ObsStats;
 use core::num::NonZeroUsize;
 use serde::{Deserialize, Serialize};
 
+mod rice_codes;
+mod transform;
+pub use rice_codes::encode_rice;
+pub(crate) use rice_codes::{decode_rice_at, encode_rice_at, rice_end};
+#[cfg(test)]
+pub(super) use transform::hadamard;
+use transform::{decode_band, encode_band, max_or_zero, rotate};
+
 /// How voxel summaries are quantized. Part of the session configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -209,77 +217,6 @@ impl SummaryCodec {
 /// Most bytes of a packed summary's head: 5-byte key deltas and residency field, a 4-byte count.
 pub const PACKED_HEAD_MAX: usize = 3 * 5 + 5 + 4;
 
-/// One stage of the Walsh–Hadamard transform in constant geometry: pairs (2j, 2j + 1) of `from` become
-/// their sum at j and their difference at j + n/2 of `to` (both of length n). log₂ n stages are the
-/// transform in Sylvester order, each output the same tree of sums and differences as the in-place
-/// butterflies (so the same bits), but every stage is one short loop instead of log₂ n nested ones.
-#[inline(never)]
-fn hadamard_stage(from: &[f32], to: &mut [f32]) {
-    let (from, to) = core::hint::black_box((from, to));
-    let (sums, diffs) = to.split_at_mut(to.len() / 2);
-    for ((pair, s), d) in from.chunks_exact(2).zip(sums).zip(diffs) {
-        if let [x, y] = *pair {
-            *s = x + y;
-            *d = x - y;
-        }
-    }
-}
-
-/// Orthonormal Walsh–Hadamard transform (its own inverse) when D is a power of two; identity otherwise.
-/// Returns the largest |entry| of the result (NaN entries ignored; 0 for none).
-#[cfg(test)]
-pub(super) fn hadamard<const D: usize>(v: &mut [f32; D]) -> f32 {
-    rotate(v, &mut [0.0; D])
-}
-
-/// [`hadamard`] of a slice of any length (`tmp` as long as `v`, scratch).
-#[inline(never)]
-fn rotate(v: &mut [f32], tmp: &mut [f32]) -> f32 {
-    let len = v.len();
-    if len < 2 || !len.is_power_of_two() || tmp.len() != len {
-        return scale_all(v, 1.0);
-    }
-    let stages = len.trailing_zeros();
-    for _ in 0..stages / 2 {
-        hadamard_stage(v, tmp);
-        hadamard_stage(tmp, v);
-    }
-    if stages % 2 == 1 {
-        hadamard_stage(v, tmp);
-        v.copy_from_slice(tmp);
-    }
-    scale_all(v, 1.0 / libm::sqrtf(len as f32))
-}
-
-// The summary codec runs once per voxel sent, not per point: its loops over D stay loops instead of being
-// unrolled D times into flash (≈ 6 KB at D = 64). They take slices, are not inlined, and hide the length
-// (a constant everywhere, which the optimizer would propagate) behind `black_box`; only code size and a
-// few instructions per voxel depend on that, never a result. Maxima are comparisons, not `f32::max`,
-// which thumbv7em lowers to a call to `fmaxf` per element.
-
-/// `v *= k`, element-wise; returns the largest |v| after it (NaN entries ignored; 0 for none).
-#[inline(never)]
-fn scale_all(v: &mut [f32], k: f32) -> f32 {
-    let v = core::hint::black_box(v);
-    let mut peak = 0.0f32;
-    for x in v {
-        *x *= k;
-        let a = libm::fabsf(*x);
-        if a > peak {
-            peak = a;
-        }
-    }
-    peak
-}
-
-/// The largest v, at least 0 (NaN entries ignored), as `fold(0, max)`.
-#[inline(never)]
-fn max_or_zero(values: &[f32]) -> f32 {
-    core::hint::black_box(values)
-        .iter()
-        .fold(0.0f32, |a, &v| if v > a { v } else { a })
-}
-
 /// log₂ steps per code of the μ scale and of Ψ's largest entry.
 const SCALE_STEPS_PER_OCTAVE: u32 = 8;
 /// Code 0 means "zero"; code c ≥ 1 means 2^((c − SCALE_OFFSET) / 8).
@@ -383,152 +320,6 @@ pub fn encode_codes_as<const D: usize>(
         out.get_mut(at..).unwrap_or_default(),
     );
     Ok(len)
-}
-
-/// [`encode_codes_as`] of a Rice session, its steps chosen by `policy` (the study compares policies):
-/// one bit stream from bit 0 of `out`, padded to a whole byte. Returns the bytes written.
-pub fn encode_rice<const D: usize>(
-    codec: SummaryCodec,
-    policy: super::rice::Policy,
-    stats: &ObsStats<D>,
-    count: u32,
-    out: &mut [u8],
-) -> Result<usize, WireError> {
-    out.fill(0);
-    Ok(encode_rice_at(codec, policy, stats, count, out, 0)?.div_ceil(8))
-}
-
-/// A Rice session's codes — mean (steps, bands) then scatter (n ≥ 2: its largest entry's code, 8 bits,
-/// and a 4-bit code per block) — as bits of `out` from bit `start` on (the bits from there on are 0).
-/// Returns the bit after them.
-pub(crate) fn encode_rice_at<const D: usize>(
-    codec: SummaryCodec,
-    policy: super::rice::Policy,
-    stats: &ObsStats<D>,
-    count: u32,
-    out: &mut [u8],
-    start: usize,
-) -> Result<usize, WireError> {
-    codec.validate(D)?;
-    let blocks = NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
-    let lead = usize::from(codec.lead);
-    let mut t = stats.mean;
-    let mut tmp = [0.0f32; D];
-    let norm = libm::sqrtf(t.iter().map(|v| v * v).sum::<f32>());
-    let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
-    let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
-    rotate(lead_band, lead_tmp);
-    rotate(rest_band, rest_tmp);
-    let mut w = super::rice::BitWriter { out, bit: start };
-    super::rice::encode_bands(
-        policy,
-        [lead_band, rest_band],
-        (norm, count),
-        super::rice::cap(D, lead),
-        &mut w,
-        |c| log_value(c, SCALE_OFFSET),
-        |x| log_code_up(x, SCALE_OFFSET),
-    );
-    if count >= 2 {
-        // The packed scatter bytes (block 2i in the low nibble of byte i), as 8 + 4·B bits.
-        let mut s = [0u8; 33];
-        let len = codec.scatter_len(count).min(s.len());
-        encode_scatter::<D>(blocks, &stats.scatter, s.get_mut(..len).unwrap_or_default());
-        w.put(u32::from(s[0]), 8);
-        for b in 0..blocks.get() {
-            w.put(
-                u32::from(s.get(1 + b / 2).copied().unwrap_or(0) >> (4 * (b % 2))),
-                4,
-            );
-        }
-    }
-    w.bytes()?;
-    Ok(w.bit)
-}
-
-/// Decode a Rice session's codes from `bytes`, bit `start` on, into statistics of weight `count` (codes
-/// sized for `n` points); with `D` = 0 only parses. Returns them, the bit after the codes and the
-/// ceilings (a step code or the scatter's code at 255).
-fn decode_rice<const D: usize>(
-    codec: SummaryCodec,
-    dim: usize,
-    (n, count): (u32, f32),
-    bytes: &[u8],
-    start: usize,
-) -> Result<(ObsStats<D>, usize, super::Ceiling), WireError> {
-    let lead = usize::from(codec.lead).min(dim);
-    let mut r = super::rice::BitReader { bytes, bit: start };
-    let mut t = [0.0f32; D];
-    let mut tmp = [0.0f32; D];
-    let steps = {
-        let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
-        let bands = if D == 0 {
-            [None, None]
-        } else {
-            [Some(lead_band), Some(rest_band)]
-        };
-        super::rice::decode_bands(&mut r, [lead, dim - lead], bands, n, |c| {
-            log_value(c, SCALE_OFFSET)
-        })?
-    };
-    let (lead_band, rest_band) = t.split_at_mut(lead.min(D));
-    let (lead_tmp, rest_tmp) = tmp.split_at_mut(lead.min(D));
-    rotate(lead_band, lead_tmp);
-    rotate(rest_band, rest_tmp);
-    let mut scatter = [0.0f32; D];
-    let mut psi_code = 0;
-    if n >= 2 {
-        psi_code = r.get(8)? as u8;
-        let psi_max = log_value(psi_code, PSI_OFFSET);
-        let blocks =
-            NonZeroUsize::new(usize::from(codec.psi_blocks)).ok_or(WireError::BadConfig)?;
-        for b in 0..blocks.get() {
-            let c = r.get(4)? as i32;
-            if psi_max > 0.0 {
-                let v = psi_max * f32math::pow2_steps(-c, BLOCK_STEPS_PER_OCTAVE);
-                for p in scatter
-                    .get_mut(block_range(D, blocks, b))
-                    .unwrap_or_default()
-                {
-                    *p = v;
-                }
-            }
-        }
-    }
-    let ceiling = super::Ceiling {
-        mean_scale: steps.contains(&u8::MAX),
-        psi: psi_code == u8::MAX,
-    };
-    let obs = ObsStats {
-        count,
-        mean: t,
-        scatter,
-    };
-    Ok((obs, r.bit, ceiling))
-}
-
-/// The bit after a Rice session's codes of a summary of `count` points starting at bit `start` of
-/// `bytes` (read from them).
-pub(crate) fn rice_end<const D: usize>(
-    codec: SummaryCodec,
-    dim: usize,
-    count: u32,
-    bytes: &[u8],
-    start: usize,
-) -> Result<usize, WireError> {
-    decode_rice::<0>(codec, dim, (count, 0.0), bytes, start).map(|(_, end, _)| end)
-}
-
-/// A Rice session's summary codes at bit `start` of `bytes`, sized for `n` points, as statistics of
-/// weight `count`: them, the bit after the codes, and the ceilings.
-pub(crate) fn decode_rice_at<const D: usize>(
-    codec: SummaryCodec,
-    (n, count): (u32, f32),
-    bytes: &[u8],
-    start: usize,
-) -> Result<(ObsStats<D>, usize, super::Ceiling), WireError> {
-    codec.validate(D)?;
-    decode_rice::<D>(codec, D, (n, count), bytes, start)
 }
 
 /// Write the scatter (largest entry, block means) into `out` (zeroed; empty for a one-point summary).
@@ -681,67 +472,5 @@ const fn band_len(len: usize, bits: u32) -> usize {
         0
     } else {
         1 + (len * bits as usize).div_ceil(8)
-    }
-}
-
-/// One band of the mean: rotate `t` (`tmp`: scratch of its length), write its scale code and its codes
-/// of `bits` bits (mid-rise uniform, packed LSB first) into `out` (`1 + ⌈len·bits/8⌉` bytes, zeroed).
-#[inline(never)]
-fn encode_band(t: &mut [f32], tmp: &mut [f32], bits: u32, out: &mut [u8]) {
-    let peak = rotate(t, tmp);
-    let Some((scale_byte, mean_bytes)) = out.split_first_mut() else {
-        return;
-    };
-    let levels = 1u32 << bits;
-    let scale_code = if peak > 0.0 && peak.is_finite() {
-        log_code_up(peak, SCALE_OFFSET)
-    } else {
-        0
-    };
-    *scale_byte = scale_code;
-    let scale = log_value(scale_code, SCALE_OFFSET);
-    if scale > 0.0 {
-        let half = (levels / 2) as f32;
-        let top = levels - 1;
-        // Bits not yet stored (LSB first) and how many.
-        let (mut pending, mut n) = (0u32, 0u32);
-        let mut bytes = mean_bytes.iter_mut();
-        for &v in t.iter() {
-            // The float-to-int cast truncates and saturates (NaN → 0), so here it is floor clamped at 0:
-            // a component a rounding step below −scale still gets code 0.
-            let q = (((v / scale + 1.0) * half) as u32).min(top);
-            pending |= q << n;
-            n += bits;
-            if n >= 8 {
-                if let Some(b) = bytes.next() {
-                    *b = pending as u8;
-                }
-                pending >>= 8;
-                n -= 8;
-            }
-        }
-        if let Some(b) = bytes.next() {
-            *b = pending as u8;
-        }
-    }
-}
-
-/// Read one band written by [`encode_band`] from `bytes` into `t` (rotated back; `tmp`: scratch).
-fn decode_band(bytes: &[u8], bits: u32, t: &mut [f32], tmp: &mut [f32]) {
-    let scale = log_value(bytes.first().copied().unwrap_or(0), SCALE_OFFSET);
-    if scale > 0.0 {
-        let bits = bits as usize;
-        let half = (1u32 << bits) as f32 / 2.0;
-        let mut bit = 8usize;
-        for v in t.iter_mut() {
-            let mut q = 0u32;
-            for k in 0..bits {
-                let byte = bytes.get((bit + k) / 8).copied().unwrap_or(0);
-                q |= u32::from(byte >> ((bit + k) % 8) & 1) << k;
-            }
-            *v = scale * ((q as f32 + 0.5) / half - 1.0);
-            bit += bits;
-        }
-        rotate(t, tmp);
     }
 }
