@@ -122,17 +122,6 @@ fn codes_of(m: i32, r_sigma: u32, bits: u32, base: i32, dither: u32) -> (u8, u8)
 }
 }
 
-/// A lone first point's merged means (its codes in code steps, [`MEAN_FRAC`] fraction bits) and scatters
-/// (0), with the largest |m| into `max_abs`.
-#[inline(never)]
-fn lone_point<const D: usize>(sums: &CodeSums<D>, max_abs: &mut u32) -> [(i32, u32); D] {
-    core::array::from_fn(|i| {
-        let m = sums.sum(i) << MEAN_FRAC;
-        *max_abs = (*max_abs).max(m.unsigned_abs());
-        (m, 0)
-    })
-}
-
 /// What one dimension's scatter merge needs from its voxel (see [`QuantVoxel::merge_codes_fixed`]).
 struct ScatterUnits {
     /// Whether the codes hold earlier points.
@@ -266,26 +255,26 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // on thumbv6m).
         // A first visit of one point (most of a sparse sensor's coolings): its mean is its codes and its
         // scatter 0, exactly what the merge below computes for it (m₀ = 0, x = Σc, m = x, t = 0), without
-        // the products.
+        // the products. The test stays in the loop: hoisted out of it (the merged array built through a
+        // branch) it grew both targets' stacks by 0.5–1 KiB and cost riscv32imac's ToF 324 a point.
         let lone = n0 == 0 && n1 == 1;
-        // Out of line: inlined, it changed the general loop's code and cost thumbv6m's LiDAR 240 instructions
-        // a point.
-        let merged: [(i32, u32); D] = if lone {
-            lone_point(sums, &mut max_abs)
-        } else {
-            core::array::from_fn(|i| {
-                let (sum, sq) = (sums.sum(i), sums.square(i));
-                let (m0, m, x) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn);
+        let merged: [(i32, u32); D] = core::array::from_fn(|i| {
+            let (sum, sq) = (sums.sum(i), sums.square(i));
+            if lone {
+                let m = sum << MEAN_FRAC;
                 max_abs = max_abs.max(m.unsigned_abs());
-                let old = old_units
-                    .get(code_at(psi_part, super::PSI_BITS, i) as usize)
-                    .copied()
-                    .unwrap_or(0);
-                let b = merged_scatter_bits(&ctx, old, sum, sq, m0, m, x);
-                psi_max_bits = psi_max_bits.max(b);
-                (m, b)
-            })
-        };
+                return (m, 0);
+            }
+            let (m0, m, x) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn);
+            max_abs = max_abs.max(m.unsigned_abs());
+            let old = old_units
+                .get(code_at(psi_part, super::PSI_BITS, i) as usize)
+                .copied()
+                .unwrap_or(0);
+            let b = merged_scatter_bits(&ctx, old, sum, sq, m0, m, x);
+            psi_max_bits = psi_max_bits.max(b);
+            (m, b)
+        });
 
         // ---- the mean's scale: kept while it fits (as `reencode`), else max|m|·1.25/q_max rounded up in f16.
         let max_abs = max_abs.min(1 << 24) as i32;
