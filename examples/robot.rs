@@ -7,16 +7,15 @@
 //! counts bytes. Run: `cargo run --release --example robot`.
 
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use latentbki::{
-    packed_len, EncoderSettings, KernelMode, MapConfig, Mapper, Prior, Setup, TickReport,
-};
+use latentbki::{mapper_type, EncoderSettings, KernelMode, MapConfig, Prior, Setup, TickReport};
 use static_cell::ConstStaticCell;
 
 /// Feature dimension.
 const D: usize = 64;
 /// Voxels the map holds (≈ 120 B each at D = 64: see `LocalMap::BYTES_PER_VOXEL`).
 const VOXELS: usize = 1024;
-type Robot = Mapper<D, VOXELS, { packed_len(D) }, 4096, 512>;
+/// The map: D, voxels, a 4 KiB queue of evicted voxels, frames of at most 512 bytes on the wire.
+type Robot = mapper_type!(D, VOXELS, 4096, 512);
 
 /// 5 cm voxels, kernel length 0.3 m, f = 3 — validated at compile time.
 const MAP: MapConfig = match MapConfig::new(0.05, 0.3, 3, Prior::DEFAULT, KernelMode::VoxelOffset) {

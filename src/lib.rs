@@ -21,12 +21,12 @@
 //!
 //! ```
 //! use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
-//! use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
+//! use latentbki::{mapper_type, EncoderSettings, MapConfig, Setup};
 //! use static_cell::ConstStaticCell;
 //!
 //! const D: usize = 64; // feature dimension (PCA-compressed)
 //! // 1,024 voxels; a 4 KiB queue of evicted voxels; frames of at most 512 bytes on the wire.
-//! type Robot = Mapper<D, 1024, { packed_len(D) }, 4096, 512>;
+//! type Robot = mapper_type!(D, 1024, 4096, 512); // = Mapper<D, 1024, { packed_len(D) }, 4096, 512>
 //!
 //! // Robot 1, session 7 (a fresh number per boot), a window of 2 m around the sensor.
 //! static SETUP: Setup = Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 7));

@@ -24,6 +24,7 @@ use crate::local_map::{LocalMap, HOT_VOXELS};
 use crate::sink::Evicted;
 use nalgebra::Isometry3;
 
+mod robot_type;
 mod sensor_frame;
 mod setup;
 mod tap;
@@ -175,7 +176,7 @@ impl<
             .map_err(SetupError::Map)?;
         #[cfg(not(feature = "mean-weights"))]
         if !setup.mean_weights.is_ones() {
-            return Err(SetupError::Map(crate::ConfigError::MeanWeights));
+            return Err(SetupError::Map(crate::config::ConfigError::MeanWeights));
         }
         if setup.int8_scale != 0.0 {
             self.map
@@ -475,12 +476,6 @@ impl<
 
 #[cfg(feature = "async")]
 mod asynch;
-
-#[cfg(test)]
-mod link_tests;
-
-#[cfg(all(test, feature = "forgetting"))]
-mod forget_tests;
 
 #[cfg(test)]
 mod tests;

@@ -168,3 +168,29 @@ fn bad_weights_are_refused_and_change_nothing() {
     assert_eq!(m.set_mean_weights(good), Ok(()));
     assert_eq!(m.mean_weights(), good);
 }
+
+/// Features whose components spread alike (the firmware self-test's): their weights are all ones on the
+/// finer grid (`MeanWeights::EQUAL`), which cuts the map's μ error, and a map cooling int8 sums in fixed
+/// point takes them (no shift to honour).
+#[test]
+fn equal_spreads_code_on_the_finer_grid() {
+    let weights = MeanWeights::from_spreads(&[0.3; D]);
+    assert_eq!(weights, MeanWeights::EQUAL);
+    // Every component spread alike: the noise of `points` scaled to the lead's spread everywhere.
+    let (p, y) = points(40 * 3 * 60);
+    let y: Vec<[f32; D]> = y
+        .iter()
+        .map(|f| core::array::from_fn(|i| f[i] / spread(i)))
+        .collect();
+    let pts = (p, y);
+    let plain = error(&run(None, &pts), &pts);
+    let fine = error(&run(Some(weights), &pts), &pts);
+    println!("RMS ‖Δm‖/‖m‖, spreads alike: one step {plain:.5}, finer grid {fine:.5}");
+    assert!(fine < 0.8 * plain, "{fine} vs {plain}");
+    let mut m = configured(None);
+    m.set_cooling(Cooling::Fixed).unwrap();
+    m.set_mean_weights(weights).unwrap();
+    assert_eq!(m.mean_weights(), MeanWeights::EQUAL);
+    m.set_cooling(Cooling::Float).unwrap();
+    m.set_cooling(Cooling::Fixed).unwrap();
+}

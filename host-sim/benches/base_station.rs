@@ -10,9 +10,9 @@
 mod stream_common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use host_sim::base_station::cli::{pump, spawn_reader, PumpOptions};
 use host_sim::base_station::store::SqliteStore;
 use host_sim::base_station::BaseStation;
+use host_sim::cli::station::{pump, spawn_reader, PumpOptions};
 use host_sim::link::SplitMix;
 use latentbki::wire::SummaryCodec;
 use std::sync::atomic::AtomicBool;

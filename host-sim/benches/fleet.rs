@@ -12,10 +12,10 @@
 #[path = "../tests/stream_common/mod.rs"]
 mod stream_common;
 
-use host_sim::base_station::cli::links::{spawn_link, LinkIds, Source};
-use host_sim::base_station::cli::{channel, pump, PumpOptions};
 use host_sim::base_station::store::SqliteStore;
 use host_sim::base_station::BaseStation;
+use host_sim::cli::station::links::{spawn_link, LinkIds, Source};
+use host_sim::cli::station::{channel, pump, PumpOptions};
 use host_sim::link::SplitMix;
 use latentbki::wire::SummaryCodec;
 use std::io::Write;

@@ -21,7 +21,7 @@ use latentbki::{info_gain, kernel::KernelLut};
 use std::hint::black_box;
 use std::time::Duration;
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 
 fn bench(c: &mut Criterion) {
     let scene = IndoorScene::generate(1);

@@ -18,7 +18,7 @@ use latentbki_selftest::{
     SELF_TEST_QUEUE_BYTES,
 };
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 const P: usize = packed_len(D);
 /// The per-KiB goal of issue 18.
 const GOAL: f64 = 35.0;

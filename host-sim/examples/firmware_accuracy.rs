@@ -11,9 +11,12 @@
 //! Printed: RMS of ‖Δμ‖/‖μ‖ over every reference voxel of every scenario (a voxel the base station cannot
 //! answer counts as ‖Δμ‖ = ‖μ‖), then each scenario's.
 //!
+//! A voxel the base station does not answer is also named on stderr.
+//!
 //! Run: `cargo run --release -p host-sim --example firmware_accuracy -- TARGET UART.bin` (`boards/measure.sh`
 //! does, for each board's run, with `--row`; TARGET is thumbv7em, thumbv6m or riscv32imac and picks the
-//! board's cooling).
+//! board's cooling). `-- TARGET --twin` feeds the base station the host twin's own stream instead (no QEMU:
+//! the same bytes, as `cargo test -p latentbki-firmware-tests` shows), for measuring a change on the host.
 
 use host_sim::base_station::BaseStation;
 use host_sim::ObsMap;
@@ -74,13 +77,14 @@ impl Probe for Reference {
     }
 }
 
-/// A writer that keeps nothing (the twin's stream is not needed here).
-struct Discard;
-impl embedded_io::ErrorType for Discard {
+/// A writer that keeps the twin's stream (with `--twin`, what the base station is fed).
+struct Collect(Vec<u8>);
+impl embedded_io::ErrorType for Collect {
     type Error = core::convert::Infallible;
 }
-impl embedded_io::Write for Discard {
+impl embedded_io::Write for Collect {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.0.extend_from_slice(buf);
         Ok(buf.len())
     }
     fn flush(&mut self) -> Result<(), Self::Error> {
@@ -88,21 +92,28 @@ impl embedded_io::Write for Discard {
     }
 }
 
-fn reference(scenario: &Scenario, cooling: Cooling, robot: &mut Robot) -> ObsMap<D> {
+fn reference(
+    scenario: &Scenario,
+    cooling: Cooling,
+    robot: &mut Robot,
+    stream: &mut Collect,
+) -> ObsMap<D> {
     let config = scenario.map_config().expect("self-test configuration");
     let mut probe = Reference {
         map: ObsMap::new(config).expect("self-test configuration"),
         voxel: config.voxel_size(),
     };
-    scenario
-        .configure_cooling(robot, cooling)
-        .expect("self-test setup");
+    let setup = scenario
+        .setup()
+        .expect("self-test setup")
+        .with_cooling(cooling);
+    robot.configure(&setup).expect("self-test setup");
     let mut chunk = Box::new(Chunk::<D, 16>::ZERO);
     selftest::run(
         scenario,
         robot,
         &mut chunk,
-        &mut Discard,
+        stream,
         &mut probe,
         |_, _, _| {},
     )
@@ -126,13 +137,13 @@ fn by_session(uart: &[u8]) -> BTreeMap<u32, Vec<u8>> {
     out
 }
 
-/// Σ ‖Δμ‖²/‖μ‖² over the reference's voxels and their number.
+/// Σ ‖Δμ‖²/‖μ‖² over the reference's voxels, their number and how many the base station did not answer.
 fn error(
     got: &[(VoxelKey, VoxelStats<D>)],
     reference: &[(VoxelKey, VoxelStats<D>)],
-) -> (f64, usize) {
+) -> (f64, usize, usize) {
     let got: HashMap<VoxelKey, &VoxelStats<D>> = got.iter().map(|(k, v)| (*k, v)).collect();
-    let mut sq = 0.0f64;
+    let (mut sq, mut missing) = (0.0f64, 0usize);
     for (k, r) in reference {
         let den: f64 = r.mean.iter().map(|x| f64::from(x * x)).sum();
         sq += match got.get(k) {
@@ -145,10 +156,13 @@ fn error(
                     .sum();
                 num / den.max(1e-30)
             }
-            None => 1.0,
+            None => {
+                missing += 1;
+                1.0
+            }
         };
     }
-    (sq, reference.len())
+    (sq, reference.len(), missing)
 }
 
 fn main() -> anyhow::Result<()> {
@@ -160,7 +174,7 @@ fn main() -> anyhow::Result<()> {
     }
     let [target, path] = args.as_slice() else {
         anyhow::bail!(
-            "usage: firmware_accuracy [--row] TARGET UART.bin (TARGET: thumbv7em, thumbv6m or riscv32imac)"
+            "usage: firmware_accuracy [--row] TARGET UART.bin|--twin (TARGET: thumbv7em, thumbv6m or riscv32imac)"
         );
     };
     let cooling = match target.as_str() {
@@ -168,13 +182,22 @@ fn main() -> anyhow::Result<()> {
         "thumbv6m" | "riscv32imac" => Cooling::Fixed,
         t => anyhow::bail!("unknown target {t} (thumbv7em, thumbv6m or riscv32imac)"),
     };
-    let uart = std::fs::read(path).map_err(|e| anyhow::anyhow!("{path}: {e}"))?;
-    let sessions = by_session(&uart);
+    let twin = path == "--twin";
     let mut robot: Box<Robot> = Box::new(Robot::EMPTY);
+    let mut stream = Collect(Vec::new());
+    let references: Vec<_> = SELF_TEST
+        .iter()
+        .map(|s| reference(s, cooling, &mut robot, &mut stream).posteriors_sorted())
+        .collect();
+    let uart = if twin {
+        stream.0
+    } else {
+        std::fs::read(path).map_err(|e| anyhow::anyhow!("{path}: {e}"))?
+    };
+    let sessions = by_session(&uart);
     let (mut sq, mut n) = (0.0f64, 0usize);
     let mut rows = Vec::new();
-    for scenario in &SELF_TEST {
-        let reference = reference(scenario, cooling, &mut robot).posteriors_sorted();
+    for (scenario, reference) in SELF_TEST.iter().zip(&references) {
         let setup = scenario.setup().expect("self-test setup");
         let mut base = BaseStation::<D>::new(setup.session(D))
             .map_err(|e| anyhow::anyhow!("base station: {e:?}"))?;
@@ -184,7 +207,10 @@ fn main() -> anyhow::Result<()> {
                 .map_or(&[][..], Vec::as_slice),
         );
         let got = base.map().map(|m| m.posteriors()).unwrap_or_default();
-        let (s, k) = error(&got, &reference);
+        let (s, k, m) = error(&got, reference);
+        if m > 0 {
+            eprintln!("{}: {m} of {k} voxels unanswered", scenario.name);
+        }
         rows.push(format!(
             "{} {:.4} ({k} voxels)",
             scenario.name,
@@ -194,7 +220,8 @@ fn main() -> anyhow::Result<()> {
         n += k;
     }
     let label = format!(
-        "μ RMS ‖Δμ‖/‖μ‖ vs f32 reference, base station from the firmware's stream ({target})"
+        "μ RMS ‖Δμ‖/‖μ‖ vs f32 reference, base station from the {} stream ({target})",
+        if twin { "host twin's" } else { "firmware's" }
     );
     let value = format!(
         "{:.4} ({} scenarios, {n} voxels; {})",

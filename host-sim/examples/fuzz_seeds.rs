@@ -129,7 +129,7 @@ fn frame_decoder(
     forgets: bool,
     codec: SummaryCodec,
 ) -> Vec<u8> {
-    const D: usize = 64;
+    use host_sim::sim::vocab::D;
     let forgetting = forgets.then(|| latentbki::forget::Forgetting::new(40.0).unwrap());
     let config = SessionConfig::new(&MapConfig::default(), D, codec, 0).with_forgetting(forgetting);
     let mut enc = FrameEncoder::<D, 4096, 512>::new(config, EncoderSettings::new(4, 8)).unwrap();

@@ -17,7 +17,7 @@ use latentbki::{
 use latentbki_selftest::SELF_TEST;
 use std::collections::{BTreeSet, HashMap};
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 const P: usize = packed_len(D);
 const CAP: usize = latentbki_selftest::SELF_TEST_CAPACITY;
 

@@ -13,12 +13,12 @@
 //! forgetting and in a map built only from the post-change frames, and the unchanged rest with and without
 //! forgetting. A voxel the map cannot answer counts as wrong.
 
-use crate::eval::experiment::{decoding, Setup};
+use crate::eval::experiment::{decoding, ExperimentSettings};
 use crate::eval::methods::D;
 use crate::explore::Truth;
 use crate::sim::indoor::{self, IndoorRun, IndoorScene, INDOOR_CLASSES};
 use crate::sim::sensor::DepthCamera;
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use crate::sim::{mix_all, Sequence};
 use crate::ObsMap;
 use anyhow::{ensure, Result};
@@ -124,11 +124,11 @@ pub fn run(layout_seed: u64, seed: u64, pixels: usize, half_life: Option<u32>) -
             ..camera
         },
     );
-    let setup = Setup {
+    let setup = ExperimentSettings {
         seed,
-        ..Setup::default()
+        ..ExperimentSettings::default()
     };
-    let dec = decoding(&Vocabulary::builtin(), &train, &setup)?;
+    let dec = decoding(&TextEmbeddings::builtin(), &train, &setup)?;
 
     // Ground truth after the change, split by whether the class changed.
     let truth_before = Truth::from_loop(&before, &config);

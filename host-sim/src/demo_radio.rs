@@ -9,16 +9,17 @@
 
 use crate::base_station::BaseStation;
 use crate::eval::methods::{Decoder, DeviceRobot, Radio, D};
-use crate::link::{ByteLog, Faults, FaultyWriter, Pipe};
+use crate::link::{ByteLog, FaultyWriter, Pipe};
 use crate::ObsMap;
-use clap::Args;
 use latentbki::frame::Resend;
 use latentbki::wire::SessionConfig;
 use latentbki::{key::VoxelKey, sink::Evicted, stats::VoxelStats, Setup};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
+mod link_args;
 mod study;
+pub use link_args::LinkArgs;
 
 /// The demo's summary codec: a Rice session (`latentbki::wire::rice`: each summary one bit stream, its
 /// mean's steps following ‖m‖ and the point count, `rice::Policy::DEFAULT`), the 4 leading (PCA) mean
@@ -53,83 +54,6 @@ pub const TICK_MS: u64 = 100;
 /// what is missing).
 const DRAIN_TICKS: u32 = 20_000;
 
-/// The demo's link, from the command line.
-#[derive(Args, Debug, Clone)]
-pub struct LinkArgs {
-    /// Byte error rate of the link (both directions); dropped bytes and bursts of garbage scale with it.
-    #[arg(long, default_value_t = 1e-4)]
-    pub ber: f64,
-    /// Fraction of frames dropped whole.
-    #[arg(long, default_value_t = 0.02)]
-    pub frame_drops: f64,
-    /// Longest delay of a delayed frame (5 % are delayed, so later frames overtake them), ms.
-    #[arg(long, default_value_t = 300)]
-    pub max_delay_ms: u64,
-    /// An outage of `--outage-secs` every this many seconds (0 = none).
-    #[arg(long, default_value_t = 0.0)]
-    pub outage_every_secs: f64,
-    /// How long each outage lasts (s).
-    #[arg(long, default_value_t = 3.0)]
-    pub outage_secs: f64,
-    /// No back channel: frames are sent once and what the link loses is lost (and counted).
-    #[arg(long)]
-    pub no_back_channel: bool,
-    /// Bytes per tick for live updates of the voxels the robot holds (0 = only final voxels).
-    #[arg(long, default_value_t = 2048)]
-    pub live_bytes: u32,
-    /// Bytes of the robot's queue budget that hold unacknowledged frames.
-    #[arg(long, default_value_t = 16 * 1024)]
-    pub resend_bytes: u32,
-    /// Ticks without acknowledgement before a frame is re-sent (a frame shown missing by a later one's
-    /// acknowledgement waits half of it). Default: the longest round trip, 2 × `--max-delay-ms`, in
-    /// ticks, plus 2 (8 at 300 ms). A shorter timeout re-sends frames that were only delayed and drains
-    /// the window sooner, so voxels leave the map and come back: at 5 the demo printed 13.79–14.22 B per
-    /// point over link seeds 7–13, at 8 13.44–13.63 (docs/numbers.md); the price is a later repair of
-    /// real losses (the run drained in 339 ticks instead of 265).
-    #[arg(long)]
-    pub resend_ticks: Option<u32>,
-    /// Seed of the link's faults.
-    #[arg(long, default_value_t = 7)]
-    pub link_seed: u64,
-    /// After the run, measure other summary codecs on the robot's map (where the base station's error
-    /// comes from; `demo_radio::study`).
-    #[arg(long)]
-    pub codec_study: bool,
-}
-
-impl LinkArgs {
-    /// The re-send timeout in ticks: `--resend-ticks`, or the longest round trip (both directions at
-    /// `--max-delay-ms`) in ticks plus 2, so that a frame only delayed is not re-sent.
-    pub fn resend_timeout_ticks(&self) -> u32 {
-        self.resend_ticks
-            .unwrap_or_else(|| {
-                let round_trip = (2 * self.max_delay_ms).div_ceil(TICK_MS);
-                u32::try_from(round_trip)
-                    .unwrap_or(u32::MAX)
-                    .saturating_add(2)
-            })
-            .max(1)
-    }
-
-    /// The faults of one direction.
-    pub fn faults(&self) -> anyhow::Result<Faults> {
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&self.ber) && (0.0..=1.0).contains(&self.frame_drops),
-            "--ber and --frame-drops are probabilities in [0, 1]"
-        );
-        anyhow::ensure!(
-            self.outage_every_secs >= 0.0 && self.outage_secs >= 0.0,
-            "--outage-every-secs and --outage-secs must be >= 0"
-        );
-        let every = (self.outage_every_secs * 1000.0) as u64;
-        let outage = ((self.outage_secs * 1000.0) as u64).min(every);
-        Ok(
-            Faults::with_drops_and_delays(self.ber, self.frame_drops, self.max_delay_ms)
-                .with_outages(every, outage),
-        )
-    }
-}
-
 /// What the robot reported about its link at the end.
 #[derive(Clone, Copy, Debug)]
 struct RobotAccount {
@@ -142,6 +66,8 @@ struct RobotAccount {
     resent_bytes: u64,
     /// Points its map refused (counted by reason; e.g. no room while the link could not keep up).
     refused: latentbki::RejectionCounts,
+    /// Whether its map's mean codes are weighed (`mean-weights`).
+    weighed: bool,
 }
 
 /// The air between robot and base station, the base station, and the account of the run.
@@ -177,7 +103,7 @@ pub struct DemoRadio {
     /// The base station against the robot's own map (what the wire alone costs).
     wire_error: Option<(f64, f64, usize)>,
     /// The live view / recording of the base station, if asked for.
-    viewer: Option<crate::base_station::cli::StationViewer>,
+    viewer: Option<crate::base_station::phrases::StationViewer>,
 }
 
 impl DemoRadio {
@@ -208,13 +134,13 @@ impl DemoRadio {
     }
 
     /// Show the base station's map in `viewer` as frames arrive.
-    pub fn attach_viewer(&mut self, viewer: crate::base_station::cli::StationViewer) {
+    pub fn attach_viewer(&mut self, viewer: crate::base_station::phrases::StationViewer) {
         self.base.watch();
         self.viewer = Some(viewer);
     }
 
     /// The viewer, at the end of the run (to keep serving, then finish).
-    pub fn take_viewer(&mut self) -> Option<crate::base_station::cli::StationViewer> {
+    pub fn take_viewer(&mut self) -> Option<crate::base_station::phrases::StationViewer> {
         self.viewer.take()
     }
 
@@ -266,6 +192,7 @@ impl DemoRadio {
             stats: robot.encoder().stats(),
             resent_bytes: u64::from(robot.encoder().resent_bytes()),
             refused: robot.map().rejections(),
+            weighed: !robot.map().mean_weights().is_ones(),
         });
     }
 
@@ -376,6 +303,24 @@ impl DemoRadio {
             r.total() - r.no_room - r.outside_window
         );
         let c = self.config.codec;
+        // The optional `latentbki` features the robot's setup uses, against the boards' build.
+        let used: Vec<&str> = [("rice-codes", c.is_rice()), ("mean-weights", robot.weighed)]
+            .into_iter()
+            .filter_map(|(f, on)| on.then_some(f))
+            .collect();
+        let boards = latentbki_selftest::BOARD_FEATURES;
+        out += &if used == boards {
+            format!(
+                "robot features: {} (exactly the boards' build, `latentbki-selftest/full`)\n",
+                used.join(", ")
+            )
+        } else {
+            format!(
+                "robot features: {} (NOT the boards' build: {})\n",
+                used.join(", "),
+                boards.join(", ")
+            )
+        };
         out += &if c.is_rice() {
             format!(
                 "summary codec: Rice-coded heads and means (a lead band of {}), scatter in {} blocks\n",
@@ -425,7 +370,7 @@ impl DemoRadio {
             s.frames,
             s.updated,
             s.decoder.refused(),
-            s.rejected.duplicate_frames,
+            s.refused.duplicate_frames,
             up.duplicated,
             down.frames,
             down.outage_dropped,
@@ -492,13 +437,13 @@ impl Radio for DemoRadioLink {
         decoder: &Decoder,
     ) {
         if let Some(v) = self.0.lock().ok().as_ref().and_then(|r| r.viewer.as_ref()) {
-            v.set_vocabulary(crate::base_station::cli::vocabulary(
+            v.set_vocabulary(crate::base_station::phrases::vocabulary(
                 classes.to_vec(),
                 decoder.clone(),
                 Box::new(pca.clone()),
             ));
             // The heat layer starts on the query the demo pictures; a viewer types another.
-            let table = crate::sim::vocab::Vocabulary::builtin();
+            let table = crate::sim::vocab::TextEmbeddings::builtin();
             if let Some(q) = crate::eval::scenes::tile_query(classes, &table) {
                 v.set_phrase(&q);
             }

@@ -19,7 +19,7 @@
 //! [`latentbki::classes`]'s.
 
 use crate::npy_io::write_pca_npz;
-use crate::sim::vocab::{Vocabulary, FULL_DIM};
+use crate::sim::vocab::{TextEmbeddings, FULL_DIM};
 use anyhow::{bail, Context, Result};
 use latentbki::classes::ClassPrototypes;
 use latentbki::decode::{Codebook, Pca};
@@ -28,20 +28,7 @@ use latentbki::wire::feature_space_id;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// The map's feature dimension (the base station's).
-pub const D: usize = 64;
-
-/// `host-sim feature-space`.
-#[derive(clap::Args, Debug)]
-pub struct FeatureSpaceArgs {
-    /// The robot's classes, comma separated, in the order of its segmenter's scores (words of the committed
-    /// vocabulary; any text with the `encoder` feature).
-    #[arg(long, value_delimiter = ',', required = true)]
-    pub classes: Vec<String>,
-    /// Folder to write pca.npz, feature_space.rs and vocabulary.tsv into (created if missing).
-    #[arg(long)]
-    pub out: PathBuf,
-}
+pub use crate::sim::vocab::D;
 
 /// A fitted feature space and its classes' int8 prototypes.
 pub struct FeatureSpace {
@@ -62,7 +49,7 @@ pub struct FeatureSpace {
 impl FeatureSpace {
     /// Fit the space for `classes` (embeddings from the committed table, or the encoder).
     pub fn new(classes: &[String]) -> Result<Self> {
-        let table = Vocabulary::builtin();
+        let table = TextEmbeddings::builtin();
         if classes.is_empty() {
             bail!("--classes: no class given");
         }
@@ -222,7 +209,7 @@ impl FeatureSpace {
 }
 
 /// The classes' embeddings: from the committed table, else (feature `encoder`) from the text encoder.
-fn class_embeddings(table: &Vocabulary, classes: &[String]) -> Result<Vec<[f32; FULL_DIM]>> {
+fn class_embeddings(table: &TextEmbeddings, classes: &[String]) -> Result<Vec<[f32; FULL_DIM]>> {
     let unknown: Vec<&str> = classes
         .iter()
         .map(|c| c.trim())
@@ -335,40 +322,4 @@ pub fn fit(classes: &[[f32; FULL_DIM]], vocabulary: &[[f32; FULL_DIM]]) -> Box<P
         }
     }
     pca
-}
-
-/// Run `host-sim feature-space`.
-pub fn run(args: &FeatureSpaceArgs) -> Result<()> {
-    let space = FeatureSpace::new(&args.classes)?;
-    let files = space.write(&args.out)?;
-    println!("feature space id: {:#010x}", space.id);
-    let trip = space.round_trip();
-    let worst = trip.iter().map(|t| t.0).fold(1.0f32, f32::min);
-    let all_right = trip.iter().enumerate().all(|(k, t)| t.1 == k);
-    println!(
-        "classes: {} ({}); int8 scale {:.6} (code c = {:.6} · c); each class's int8 prototype decodes {} (cosine with its embedding ≥ {worst:.4})",
-        space.classes.join(", "),
-        space.classes.len(),
-        space.scale,
-        space.scale,
-        if all_right { "to itself" } else { "WRONGLY for some class" },
-    );
-    println!(
-        "wrote {} (base station: map-query DB --pca {} --classes {})",
-        files[0].display(),
-        files[0].display(),
-        space.classes.join(",")
-    );
-    println!(
-        "wrote {} (firmware: `mod feature_space;`, Setup::with_classes(&PROTOTYPES), PROTOTYPES.mix(&scores, &mut codes) per point; docs/firmware.md)",
-        files[1].display()
-    );
-    println!(
-        "wrote {} (the classes' text embeddings: the base station reads it beside --pca)",
-        files[2].display()
-    );
-    if !all_right {
-        bail!("some class's prototype decodes to another class: the classes are too alike to tell apart");
-    }
-    Ok(())
 }

@@ -1,10 +1,15 @@
-//! host-sim: the desktop twin of the robot. It runs the same `latentbki` core as the firmware: the f32
-//! reference map, recorded-data integration and (later) the simulator and base station.
+//! host-sim: the desktop twin of the robot. It runs the same `latentbki` core as the firmware: the
+//! simulator (scenes, sensors, a simulated vision-language encoder), the paper's evaluation, the f32
+//! reference map, exploration, the demo's radio and the base station's commands.
+//!
+//! Every command lives in [`cli`], the top floor; the modules below it are the library the commands are
+//! built from, and none of them imports [`cli`].
 #![forbid(unsafe_code)]
 
 pub mod base_station;
 pub mod bench;
 pub mod changing;
+pub mod cli;
 pub mod cli_args;
 pub mod demo_radio;
 pub mod eval;
@@ -17,7 +22,6 @@ pub mod reference_map;
 pub mod sim;
 #[cfg(feature = "encoder")]
 pub mod text_encoder;
-pub mod view_bench;
 
 pub use latentbki_station::{obs_map, png_io, ObsMap};
 pub use reference_map::ReferenceMap;

@@ -16,11 +16,11 @@
 // Loops over a dimension index that address several parallel arrays read like the equations.
 #![allow(clippy::needless_range_loop)]
 
-use host_sim::eval::experiment::{self, Setup};
+use host_sim::eval::experiment::{self, ExperimentSettings};
 use host_sim::eval::methods::D;
-use host_sim::eval::scenes::{Scene, SceneOptions, SceneSource};
+use host_sim::eval::scenes::{SceneKind, SceneOptions, SceneSource};
 use host_sim::reference_map::HOST_LUT_CAP;
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::sim::vocab::TextEmbeddings;
 use host_sim::ReferenceMap;
 use latentbki::{
     batch::locate, batch::spread, kernel::KernelLut, key::to_map_frame, key::VoxelKey,
@@ -91,12 +91,12 @@ fn quantiles(mut xs: Vec<f64>) -> (f64, f64, f64) {
 
 #[test]
 fn authors_epsilons_and_dense_update_change_nothing_measurable() {
-    let setup = Setup::default();
+    let setup = ExperimentSettings::default();
     let options = SceneOptions::default();
-    let source = SceneSource::new(Scene::Tile, &options, setup.seed).unwrap();
+    let source = SceneSource::new(SceneKind::Tile, &options, setup.seed).unwrap();
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup).unwrap();
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup).unwrap();
     let frames = experiment::encode(&test, &dec, &setup);
     let config = test.config;
     let lut = Box::new(KernelLut::<HOST_LUT_CAP>::new(&config).unwrap());

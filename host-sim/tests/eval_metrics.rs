@@ -2,7 +2,7 @@
 //! predictions), and sparsification / AUSE on toy rankings.
 
 use host_sim::eval::metrics::Confusion;
-use host_sim::eval::sparsification::{analyse, ause, curve, oracle_order, rank_by, Scored};
+use host_sim::eval::sparsification::{analyse, ause, curve, oracle_order, rank_by, ScoredPoint};
 
 /// 3 classes. Truth / prediction pairs:
 /// class 0: 4 points → 3 right, 1 predicted as 1
@@ -53,8 +53,8 @@ fn confusion_to_accuracy_iou_miou() {
     assert_eq!(Confusion::new(2).miou(), 0.0);
 }
 
-fn pt(truth: u16, predicted: u16, u: f32) -> Scored {
-    Scored {
+fn pt(truth: u16, predicted: u16, u: f32) -> ScoredPoint {
+    ScoredPoint {
         truth,
         predicted,
         e_opt: u,
@@ -71,7 +71,7 @@ fn pt(truth: u16, predicted: u16, u: f32) -> Scored {
 /// ranking puts them last.
 #[test]
 fn sparsification_and_ause_on_a_toy_case() {
-    let mut pts: Vec<Scored> = (0..8).map(|i| pt(0, 0, i as f32)).collect();
+    let mut pts: Vec<ScoredPoint> = (0..8).map(|i| pt(0, 0, i as f32)).collect();
     pts.push(pt(1, 0, 100.0));
     pts.push(pt(0, 1, 99.0));
     let fr = [0.0, 0.1, 0.2, 0.5];

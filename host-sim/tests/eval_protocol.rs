@@ -2,9 +2,9 @@
 //! seed → another; the VLMap-style mean and LatentBKI f = 1 agree (the paper's generalisation claim); the
 //! quantized device map tracks the f32 map.
 
-use host_sim::eval::experiment::{self, Inputs, Method, Setup};
-use host_sim::eval::scenes::{self, Scene, SceneOptions, SceneSource};
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::eval::experiment::{self, ExperimentSettings, Inputs, Method};
+use host_sim::eval::scenes::{self, SceneKind, SceneOptions, SceneSource};
+use host_sim::sim::vocab::TextEmbeddings;
 
 fn small() -> SceneOptions {
     SceneOptions {
@@ -17,18 +17,18 @@ fn small() -> SceneOptions {
 #[test]
 fn same_seed_same_table() {
     let dir = tempfile::tempdir().unwrap();
-    let setup = Setup::default();
-    let a = scenes::run(Scene::Tile, &small(), &setup, dir.path(), false, None).unwrap();
-    let b = scenes::run(Scene::Tile, &small(), &setup, dir.path(), false, None).unwrap();
+    let setup = ExperimentSettings::default();
+    let a = scenes::run(SceneKind::Tile, &small(), &setup, dir.path(), false, None).unwrap();
+    let b = scenes::run(SceneKind::Tile, &small(), &setup, dir.path(), false, None).unwrap();
     assert_eq!(a.markdown, b.markdown);
     for (x, y) in a.results.iter().zip(&b.results) {
         assert_eq!(x.confusion, y.confusion, "{}", x.method.label());
     }
-    let other = Setup {
+    let other = ExperimentSettings {
         seed: setup.seed + 1,
         ..setup
     };
-    let c = scenes::run(Scene::Tile, &small(), &other, dir.path(), false, None).unwrap();
+    let c = scenes::run(SceneKind::Tile, &small(), &other, dir.path(), false, None).unwrap();
     assert_ne!(a.markdown, c.markdown);
     // The pictures were written.
     for f in &a.figures {
@@ -42,12 +42,12 @@ fn same_seed_same_table() {
 
 #[test]
 fn running_mean_equals_latentbki_f1_and_device_tracks_f32() {
-    let setup = Setup::default();
+    let setup = ExperimentSettings::default();
     let options = small();
-    let source = SceneSource::new(Scene::Tile, &options, setup.seed).unwrap();
+    let source = SceneSource::new(SceneKind::Tile, &options, setup.seed).unwrap();
     let train = source.sequence(source.budget(), true);
     let test = source.sequence(source.budget(), false);
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup).unwrap();
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup).unwrap();
     let frames = experiment::encode(&test, &dec, &setup);
     let held: usize = frames.iter().map(|f| f.held_points.len()).sum();
     let all: usize = frames

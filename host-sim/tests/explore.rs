@@ -5,7 +5,7 @@ use host_sim::explore::world::{footprint, World};
 use host_sim::explore::{mean_curve, run, Explorer, Planner, Sample, Truth, UTILITY_OFFSET_M};
 use host_sim::sim::indoor::{self, IndoorRun, IndoorScene};
 use host_sim::sim::mix_all;
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::sim::vocab::TextEmbeddings;
 use host_sim::ObsMap;
 use latentbki::kernel::KernelLut;
 use latentbki::nalgebra::Isometry3;
@@ -74,9 +74,9 @@ fn house_one() -> (
     );
     let config = train.config;
     let dec = host_sim::eval::experiment::decoding(
-        &Vocabulary::builtin(),
+        &TextEmbeddings::builtin(),
         &train,
-        &host_sim::eval::experiment::Setup::default(),
+        &host_sim::eval::experiment::ExperimentSettings::default(),
     )
     .unwrap();
     let truth = Truth::from_loop(&scene, &config);

@@ -21,7 +21,7 @@ mod feature_space {
 }
 use feature_space::{CLASSES, FEATURE_SPACE, PROTOTYPES};
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 type Robot = Mapper<D, 8192, { packed_len(D) }, 8192, 512>;
 static SETUP: Setup =
     Setup::new(MapConfig::DEFAULT, 4.5, EncoderSettings::new(5, 1)).with_classes(&PROTOTYPES);
@@ -291,10 +291,10 @@ fn a_robot_on_the_constants_streams_classes_the_base_station_decodes_with_the_np
     );
 
     // Voxel by voxel: every clear surface voxel decodes to its class.
-    let map = host_sim::base_station::cli::read_map(&db).unwrap();
+    let map = host_sim::cli::station::read_map(&db).unwrap();
     let map = map.map().expect("a map");
     assert_eq!(map.config().feature_space, FEATURE_SPACE);
-    let table = host_sim::sim::vocab::Vocabulary::builtin();
+    let table = host_sim::sim::vocab::TextEmbeddings::builtin();
     let book =
         Codebook::<D, 8>::from_pca(&read_pca(&npz), &table.embeddings(&CLASSES).unwrap()).unwrap();
     let (mut right, mut clear) = (0, 0);

@@ -5,11 +5,11 @@
 
 use host_sim::changing::changed;
 use host_sim::demo_radio::CODEC;
-use host_sim::eval::experiment::{decoding, Setup as EvalSetup};
+use host_sim::eval::experiment::{decoding, ExperimentSettings};
 use host_sim::sim::indoor::{self, IndoorRun, IndoorScene};
 use host_sim::sim::mix_all;
 use host_sim::sim::sensor::DepthCamera;
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::sim::vocab::TextEmbeddings;
 use host_sim::ObsMap;
 use latentbki::forget::{Fading, Forgetting, Stamped};
 use latentbki::key::VoxelKey;
@@ -20,7 +20,7 @@ use rand_xoshiro::rand_core::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::BTreeMap;
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 type Robot = Mapper<D, 4096, { packed_len(D) }, 32_768, 1024, 32, Fading>;
 
 #[test]
@@ -55,11 +55,11 @@ fn decayed_statistics_at_the_base_station_equal_the_robots() {
         },
     );
     let dec = decoding(
-        &Vocabulary::builtin(),
+        &TextEmbeddings::builtin(),
         &train,
-        &EvalSetup {
+        &ExperimentSettings {
             seed,
-            ..EvalSetup::default()
+            ..ExperimentSettings::default()
         },
     )
     .unwrap();
@@ -127,7 +127,7 @@ fn decayed_statistics_at_the_base_station_equal_the_robots() {
     // The base station's, from the bytes.
     let mut base = BaseStation::<D>::adopting();
     base.receive(link);
-    assert_eq!(base.stats().rejected.invalid_voxel, 0);
+    assert_eq!(base.stats().refused.invalid_voxel, 0);
     let mut map = base.into_map().expect("a session");
     assert_eq!(
         map.forgetting(),

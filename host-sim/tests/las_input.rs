@@ -447,7 +447,7 @@ fn user_and_reserved_classes_get_a_name_and_a_file_without_crs_is_metres() {
     assert_eq!(t.units.horizontal, 1.0);
     assert!(t.units.source.contains("no CRS"), "{}", t.units.source);
     // Unnamed classes get distinct fixed directions, named ones their text embeddings.
-    let vocab = host_sim::sim::vocab::Vocabulary::builtin();
+    let vocab = host_sim::sim::vocab::TextEmbeddings::builtin();
     let names: Vec<&str> = t.names.iter().map(String::as_str).collect();
     let e = vocab.class_embeddings(&names).unwrap();
     assert_eq!(e[1], *vocab.get("water").unwrap());

@@ -19,7 +19,7 @@ use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::HashMap;
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 const P: usize = packed_len(D);
 const CAP: usize = 12_000;
 

@@ -2,7 +2,7 @@
 //! paper update of the reference map: on random batches (proptest), on both scenes' real geometry and
 //! with non-centred features. Relative errors are printed (`-- --nocapture`) with their tails.
 
-use host_sim::eval::scenes::{Scene, SceneOptions, SceneSource};
+use host_sim::eval::scenes::{SceneKind, SceneOptions, SceneSource};
 use host_sim::{ObsMap, ReferenceMap};
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use latentbki::{obs::ObsLookup, stats::VoxelStats, KernelMode, MapConfig, Prior};
@@ -83,8 +83,8 @@ fn feature<const D: usize>(class: u16, i: usize, offset: f32) -> [f32; D] {
     })
 }
 
-fn scene_equivalence(scene: Scene) {
-    const D: usize = 64;
+fn scene_equivalence(scene: SceneKind) {
+    use host_sim::sim::vocab::D;
     let options = SceneOptions {
         tile_frames: 20,
         ..SceneOptions::default()
@@ -123,12 +123,12 @@ fn scene_equivalence(scene: Scene) {
 
 #[test]
 fn tile_equals_the_reference_map() {
-    scene_equivalence(Scene::Tile);
+    scene_equivalence(SceneKind::Tile);
 }
 
 #[test]
 fn indoor_equals_the_reference_map() {
-    scene_equivalence(Scene::Indoor);
+    scene_equivalence(SceneKind::Indoor);
 }
 
 #[test]

@@ -3,28 +3,32 @@
 //! scrambled, the scores change (so this test can fail). And the split is of the integrated points only,
 //! disjoint, a fifth of them.
 
-use host_sim::eval::experiment::{self, Setup};
+use host_sim::eval::experiment::{self, ExperimentSettings};
 use host_sim::eval::methods::EncodedFrame;
 use host_sim::eval::scale_search::{self, Candidate, Choice};
-use host_sim::eval::scenes::{Scene, SceneOptions, SceneSource};
-use host_sim::sim::vocab::Vocabulary;
+use host_sim::eval::scenes::{SceneKind, SceneOptions, SceneSource};
+use host_sim::sim::vocab::TextEmbeddings;
 use latentbki::MapConfig;
 
-fn frames() -> (Vec<EncodedFrame>, experiment::Decoding, Setup) {
+fn frames() -> (Vec<EncodedFrame>, experiment::Decoding, ExperimentSettings) {
     let options = SceneOptions {
         tile_frames: 6,
         tile_points: 1500,
         ..SceneOptions::default()
     };
-    let setup = Setup::default();
-    let source = SceneSource::new(Scene::Tile, &options, setup.seed).unwrap();
+    let setup = ExperimentSettings::default();
+    let source = SceneSource::new(SceneKind::Tile, &options, setup.seed).unwrap();
     let (train, test) = source.train_and_test().unwrap();
-    let dec = experiment::decoding(&Vocabulary::builtin(), &train, &setup).unwrap();
+    let dec = experiment::decoding(&TextEmbeddings::builtin(), &train, &setup).unwrap();
     let frames = experiment::encode(&test, &dec, &setup);
     (frames, dec, setup)
 }
 
-fn choose(frames: &[EncodedFrame], dec: &experiment::Decoding, setup: &Setup) -> Choice {
+fn choose(
+    frames: &[EncodedFrame],
+    dec: &experiment::Decoding,
+    setup: &ExperimentSettings,
+) -> Choice {
     let candidates: Vec<Candidate> = [(0.1, 0.1), (0.1, 0.3), (0.2, 0.4)]
         .iter()
         .map(|&(voxel, kernel)| Candidate {

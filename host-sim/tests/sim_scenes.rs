@@ -4,7 +4,7 @@
 use host_sim::sim::encoder::{Encoder, NoiseModel};
 use host_sim::sim::indoor::{self, IndoorRun, IndoorScene, INDOOR_CLASSES};
 use host_sim::sim::tile::{self, Tile, TileRun};
-use host_sim::sim::vocab::{cosine, Vocabulary, FULL_DIM};
+use host_sim::sim::vocab::{cosine, TextEmbeddings, FULL_DIM};
 use host_sim::sim::{pca, LabelledPoint};
 use rand_xoshiro::rand_core::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -29,7 +29,7 @@ fn tile_is_read_in_metres_with_its_classes() {
     }
     assert_eq!(hist, [9808, 158, 724, 10956, 3737, 25]);
     // Every class phrase is in the vocabulary.
-    let vocab = Vocabulary::builtin();
+    let vocab = TextEmbeddings::builtin();
     for n in t.class_names() {
         vocab.get(&n).unwrap();
     }
@@ -87,7 +87,7 @@ fn indoor_camera_sees_the_house() {
 }
 
 fn encoder(model: NoiseModel) -> (Encoder, Vec<[f32; FULL_DIM]>) {
-    let vocab = Vocabulary::builtin();
+    let vocab = TextEmbeddings::builtin();
     let names = Tile::builtin().unwrap().class_names();
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
     let emb = vocab.embeddings(&names).unwrap();
@@ -244,7 +244,7 @@ fn pca_finds_the_subspace_and_is_orthonormal() {
 
 #[test]
 fn unknown_words_list_the_vocabulary() {
-    let v = Vocabulary::builtin();
+    let v = TextEmbeddings::builtin();
     assert_eq!(v.phrases().len(), 64);
     let e = v.get("spaceship").unwrap_err();
     let msg = e.to_string();

@@ -14,7 +14,7 @@ use latentbki::{
 };
 use std::collections::{BTreeMap, BTreeSet};
 
-const D: usize = 64;
+use host_sim::sim::vocab::D;
 
 fn config() -> SessionConfig {
     SessionConfig::new(&MapConfig::default(), D, SummaryCodec::DEFAULT, 0x1234_5678)
@@ -142,7 +142,7 @@ fn faulty_links_never_corrupt_the_map_and_count_every_loss() {
             frames.len(),
             accepted.len(),
             s.lost,
-            s.rejected.duplicate_frames,
+            s.refused.duplicate_frames,
             s.decoder.crc_errors,
             s.decoder.cobs_errors,
             s.decoder.too_short,
@@ -168,7 +168,7 @@ fn faulty_links_never_corrupt_the_map_and_count_every_loss() {
         );
         assert_eq!(s.lost, truly_lost);
         // Every further intact copy of a frame is a refused duplicate.
-        assert!(u64::from(s.rejected.duplicate_frames) >= intact_copies - intact_seqs.len() as u64);
+        assert!(u64::from(s.refused.duplicate_frames) >= intact_copies - intact_seqs.len() as u64);
         let log = link.log();
         assert!(
             log.dropped > 0 && log.truncated > 0 && log.duplicated > 0 && log.corrupted_bytes > 0
@@ -217,7 +217,7 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
         base.receive(f);
     }
     assert_eq!(
-        base.stats().rejected.wrong_config as usize,
+        base.stats().refused.wrong_config as usize,
         foreign_frames.len()
     );
     assert!(base.map().unwrap().is_empty());
@@ -226,7 +226,7 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
     let mut v2 = body.clone();
     v2[0] = PROTOCOL_VERSION + 1;
     base.receive(&frame_body(&v2));
-    assert_eq!(base.stats().rejected.version, 1);
+    assert_eq!(base.stats().refused.version, 1);
     // A summary with a point count of 0 in a frame with a valid CRC: the whole frame is refused.
     let voxel_body = good
         .values()
@@ -260,7 +260,7 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
     });
     let n = latentbki::wire::encode_body(&h, &msg, &mut out).unwrap();
     base.receive(&frame_body(&out[..n]));
-    assert_eq!(base.stats().rejected.invalid_voxel, 1);
+    assert_eq!(base.stats().refused.invalid_voxel, 1);
     assert!(base.map().unwrap().is_empty());
     let _ = seq;
     // An adopting base station takes the first valid session header's configuration, refuses others.
@@ -273,7 +273,7 @@ fn wrong_version_and_wrong_config_are_refused_and_counted() {
     }
     assert_eq!(adopting.map().unwrap().config(), &config());
     assert_eq!(
-        adopting.stats().rejected.wrong_config as usize,
+        adopting.stats().refused.wrong_config as usize,
         foreign_frames.len()
     );
     assert!(!adopting.map().unwrap().is_empty());

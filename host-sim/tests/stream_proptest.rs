@@ -219,7 +219,7 @@ proptest! {
             mean_within_bound(codec, v, &s.obs)?;
         }
         prop_assert_eq!(base.stats().lost, 0);
-        prop_assert_eq!(base.stats().rejected, Default::default());
+        prop_assert_eq!(base.stats().refused, Default::default());
     }
 
     #[test]
@@ -332,7 +332,7 @@ proptest! {
         let mut base = BaseStation::<D>::new(session(codec)).unwrap();
         base.receive(&frame_body(&body[..n]));
         let s = base.stats();
-        let r = s.rejected;
+        let r = s.refused;
         let refused = r.malformed + r.invalid_voxel + r.wrong_config + r.version;
         prop_assert_eq!(s.frames + refused, 1, "{:?}", s);
         let map = base.map().unwrap();

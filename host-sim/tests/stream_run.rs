@@ -96,7 +96,7 @@ fn whole_run_with_exact_codes_equals_the_reference_map() {
     let r = run(codec, &[path(0.5, 11.0, 3.0, 0.0)], 64 * 1024);
     let s = r.base.stats();
     assert_eq!(
-        (s.lost, s.decoder.refused(), s.rejected.malformed),
+        (s.lost, s.decoder.refused(), s.refused.malformed),
         (0, 0, 0)
     );
     // Voxels really were evicted and observed again: some keys have two closed contributions.

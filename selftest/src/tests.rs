@@ -222,3 +222,51 @@ fn the_tof_zones_are_the_library_table() {
         }
     }
 }
+
+/// `BOARD_FEATURES` names exactly the `latentbki` features this crate's `full` feature (the boards' build)
+/// enables.
+#[test]
+fn board_features_are_what_full_enables() {
+    let manifest = include_str!("../Cargo.toml");
+    let line = manifest
+        .lines()
+        .find(|l| l.starts_with("full = "))
+        .expect("a `full` feature");
+    let enabled: Vec<&str> = line
+        .split('"')
+        .filter_map(|s| s.strip_prefix("latentbki/"))
+        .collect();
+    assert!(!enabled.is_empty(), "{line}");
+    #[cfg(feature = "full")]
+    assert_eq!(enabled, BOARD_FEATURES);
+    #[cfg(not(feature = "full"))]
+    assert!(BOARD_FEATURES.is_empty());
+}
+
+/// The maps' mean weights are those of the scene's feature space: every component of the features spreads
+/// alike, so `MeanWeights::from_spreads` gives all ones on the finer grid.
+#[test]
+fn mean_weights_come_from_the_scenes_spreads() {
+    const D: usize = 64;
+    let scene = &TOF_ROOM;
+    let (mut sum, mut sq, mut n) = ([0.0f64; D], [0.0f64; D], 0.0f64);
+    let mut feature = [0.0f32; D];
+    for frame in 0..48 {
+        let view = scene.view(frame);
+        for zone in 0..scene.sensor.zones() {
+            if scene.observe(&view, frame, zone, &mut feature).is_some() {
+                for i in 0..D {
+                    sum[i] += f64::from(feature[i]);
+                    sq[i] += f64::from(feature[i]).powi(2);
+                }
+                n += 1.0;
+            }
+        }
+    }
+    let spreads: [f32; D] =
+        core::array::from_fn(|i| ((sq[i] / n - (sum[i] / n).powi(2)).sqrt()) as f32);
+    let weights = latentbki::quant::MeanWeights::from_spreads(&spreads);
+    assert_eq!(weights, latentbki::quant::MeanWeights::EQUAL, "{spreads:?}");
+    #[cfg(feature = "full")]
+    assert_eq!(SELF_TEST_MEAN_WEIGHTS, weights);
+}

@@ -7,10 +7,11 @@
 //! is refused. With it, all-ones weights take the same path as before: the same codes bit for bit.
 //!
 //! The fixed-point cooling of int8 sums (`Cooling::Fixed`, thumbv6m and riscv32imac) is refused with
-//! weights ([`ConfigError::MeanWeightsFixedCooling`]): its integer merge decodes and re-encodes the codes on
-//! one step, and honouring the weights there (a shift per dimension in each of its passes) is flash those
-//! boards do not have (riscv32imac: ≈ 150 B left of 64 KiB); they have no FPU, so their f32 cooling is
-//! soft float. A map with weights cools in f32.
+//! weights other than 1 ([`ConfigError::MeanWeightsFixedCooling`]): its integer merge decodes and
+//! re-encodes the codes on one step, and honouring the weights there (a shift per dimension in each of its
+//! passes) is flash those boards do not have; they have no FPU, so their f32 cooling is soft float. A map
+//! with weights cools in f32. `MeanWeights::EQUAL` (all ones on the finer grid) is taken: its f32 merges
+//! code on that grid, its integer ones on their own.
 
 use super::LocalMap;
 use crate::config::ConfigError;
@@ -30,8 +31,8 @@ pub(super) struct Weights;
 impl Weights {
     pub(super) const ONES: Self = Self;
     #[inline(always)]
-    pub(super) const fn is_ones(&self) -> bool {
-        true
+    pub(super) const fn has_shifts(&self) -> bool {
+        false
     }
     #[inline(always)]
     pub(super) fn apply(&self, _mean: &mut [f32], _up: bool) {}
@@ -69,7 +70,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         #[cfg(feature = "mean-weights")]
         {
             weights.validate(D)?;
-            if self.cooling() == crate::quant::Cooling::Fixed {
+            if weights.has_shifts() && self.cooling() == crate::quant::Cooling::Fixed {
                 return Err(ConfigError::MeanWeightsFixedCooling);
             }
             self.mean_weights = weights;

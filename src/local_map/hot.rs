@@ -117,12 +117,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         // Forgetting: the codes are as of their stamp, the hot statistics as of theirs (never earlier), so
         // the codes fade to the hot stamp before the exact merge ([`crate::forget::Stamped::merge`]).
         let older = self.clock.forgetting().is_some() && slot.stamp != hot.stamp;
-        let weighed = !self.mean_weights.is_ones();
+        let weighed = self.mean_weights.has_shifts();
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
-            // the mean is weighed first (below).
+            // the mean is weighed first (below); on the weights' grid.
             (Acc::Float(o), false) if !weighed && !o.is_empty() => {
-                slot.codes.reencode_here(o, &mut self.dither)
+                self.mean_weights
+                    .reencode(&mut slot.codes, o, &mut self.dither)
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.

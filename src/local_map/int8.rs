@@ -48,7 +48,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         if !cooling.is_built() {
             return Err(ConfigError::Cooling);
         }
-        if cooling == Cooling::Fixed && !self.mean_weights.is_ones() {
+        if cooling == Cooling::Fixed && self.mean_weights.has_shifts() {
             return Err(ConfigError::MeanWeightsFixedCooling);
         }
         #[cfg(not(target_os = "none"))]

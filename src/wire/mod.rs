@@ -84,7 +84,5 @@ impl core::fmt::Display for WireError {
 
 impl core::error::Error for WireError {}
 
-#[cfg(all(test, feature = "rice-codes"))]
-mod rice_tests;
 #[cfg(test)]
 mod tests;

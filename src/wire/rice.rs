@@ -277,13 +277,14 @@ pub(super) fn encode_bands(
         let mut ks = [0u32; 2];
         let mut codes = [0u8; 2];
         let mut bits = 0;
-        for (i, band) in bands.iter().enumerate() {
+        // Zipped, not indexed: no bounds check (the boards' `panic-never` build links this).
+        for (((band, code), k), fine) in bands.iter().zip(&mut codes).zip(&mut ks).zip(&finest) {
             if band.is_empty() || base == 0 || zero(band) {
                 continue;
             }
-            codes[i] = finest[i].saturating_add(8u8.saturating_mul(extra));
-            let (k, b) = best_k(band, step_value(codes[i]));
-            ks[i] = k;
+            *code = fine.saturating_add(8u8.saturating_mul(extra));
+            let (best, b) = best_k(band, step_value(*code));
+            *k = best;
             bits += b;
         }
         if has_lead {

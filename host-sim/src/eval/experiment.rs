@@ -15,13 +15,13 @@
 //! frames in order), so results do not depend on scheduling: same seed, same table.
 
 use super::methods::{
-    CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, Mapper, OnDevice, Radio,
-    RunningMean, SegmentationOnly, D,
+    CategoricalBki, Decoder, EncodedFrame, Feature, Heuristic, LatentBki, MappingMethod, OnDevice,
+    Radio, RunningMean, SegmentationOnly, D,
 };
 use super::metrics::Confusion;
-use super::sparsification::Scored;
+use super::sparsification::ScoredPoint;
 use crate::sim::encoder::{Encoder, NoiseModel};
-use crate::sim::vocab::{Vocabulary, FULL_DIM};
+use crate::sim::vocab::{TextEmbeddings, FULL_DIM};
 use crate::sim::{mix_all, pca, unit, Sequence};
 use indicatif::ProgressBar;
 use latentbki::{
@@ -34,7 +34,7 @@ use std::time::Instant;
 
 /// Settings of an experiment that are not the scene's.
 #[derive(Clone, Copy, Debug)]
-pub struct Setup {
+pub struct ExperimentSettings {
     /// The simulated network's error model.
     pub noise: NoiseModel,
     /// Seed of the test sequence's encoder noise and hold-out split.
@@ -50,7 +50,7 @@ pub struct Setup {
     pub device_window: f32,
 }
 
-impl Default for Setup {
+impl Default for ExperimentSettings {
     fn default() -> Self {
         Self {
             noise: NoiseModel::default(),
@@ -83,7 +83,11 @@ pub struct Decoding {
 }
 
 /// Fit the PCA on `train` (encoded with a seed of its own) and build the codebook.
-pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::Result<Decoding> {
+pub fn decoding(
+    vocab: &TextEmbeddings,
+    train: &Sequence,
+    setup: &ExperimentSettings,
+) -> anyhow::Result<Decoding> {
     let names: Vec<&str> = train.classes.iter().map(String::as_str).collect();
     let embeddings = vocab.class_embeddings(&names)?;
     let train_seed = mix_all(&[setup.seed, 0x7EA1]);
@@ -126,7 +130,7 @@ pub fn decoding(vocab: &Vocabulary, train: &Sequence, setup: &Setup) -> anyhow::
 }
 
 /// Encode a sequence and split each frame into integrated and held-out points.
-pub fn encode(seq: &Sequence, dec: &Decoding, setup: &Setup) -> Vec<EncodedFrame> {
+pub fn encode(seq: &Sequence, dec: &Decoding, setup: &ExperimentSettings) -> Vec<EncodedFrame> {
     seq.frames
         .iter()
         .enumerate()
@@ -240,9 +244,9 @@ pub struct MethodResult {
     /// Wall time of integration and evaluation, seconds.
     pub seconds: f64,
     /// Per held-out point uncertainties (only for the method asked to score them).
-    pub scored: Vec<Scored>,
+    pub scored: Vec<ScoredPoint>,
     /// The final map.
-    pub mapper: Box<dyn Mapper>,
+    pub mapper: Box<dyn MappingMethod>,
 }
 
 fn with_filter(config: &MapConfig, f: u8) -> anyhow::Result<MapConfig> {
@@ -260,9 +264,9 @@ fn build(
     method: Method,
     config: &MapConfig,
     dec: &Decoding,
-    setup: &Setup,
+    setup: &ExperimentSettings,
     link: Option<Box<dyn Radio>>,
-) -> anyhow::Result<Box<dyn Mapper>> {
+) -> anyhow::Result<Box<dyn MappingMethod>> {
     let e = |e: latentbki::ConfigError| anyhow::anyhow!("{}: {e}", method.label());
     Ok(match method {
         Method::Segmentation => Box::new(SegmentationOnly),
@@ -379,7 +383,7 @@ pub(super) fn run_one(
                     if let Some(u) =
                         uncertainties(&v, &dec.decoder, pred, setup.sampling_draws, &mut sampler)
                     {
-                        scored.push(Scored {
+                        scored.push(ScoredPoint {
                             truth: *c,
                             predicted: pred as u16,
                             e_opt: u.e_tvar,
@@ -417,7 +421,7 @@ pub struct Inputs<'a> {
     /// PCA, codebook, encoder.
     pub dec: &'a Decoding,
     /// The experiment's settings.
-    pub setup: &'a Setup,
+    pub setup: &'a ExperimentSettings,
 }
 
 /// How heavy a run of `m` is per point, for scheduling: the kernel's reach f³ dominates, and the device map

@@ -27,8 +27,7 @@ use latentbki::{
 };
 use std::collections::HashMap;
 
-/// Feature dimension of every map here (the paper's 64).
-pub const D: usize = 64;
+pub use crate::sim::vocab::D;
 /// Codebook capacity: the most classes a scene can have (the vocabulary has 64 phrases).
 pub const K: usize = 64;
 /// A compressed feature.
@@ -58,7 +57,7 @@ pub struct EncodedFrame {
 }
 
 /// A mapping method under evaluation.
-pub trait Mapper: Send {
+pub trait MappingMethod: Send {
     /// Integrate one frame's input points.
     fn integrate(&mut self, frame: &EncodedFrame);
     /// The class predicted at a held-out point (`own` is the point's own feature); `None` = unknown.
@@ -93,7 +92,7 @@ fn decode(decoder: &Decoder, mu: &Feature) -> Option<usize> {
 /// Decode each point's own feature.
 pub struct SegmentationOnly;
 
-impl Mapper for SegmentationOnly {
+impl MappingMethod for SegmentationOnly {
     fn integrate(&mut self, _frame: &EncodedFrame) {}
     fn predict(&self, decoder: &Decoder, _p: [f32; 3], own: &Feature) -> Option<usize> {
         decode(decoder, own)
@@ -119,7 +118,7 @@ impl Heuristic {
     }
 }
 
-impl Mapper for Heuristic {
+impl MappingMethod for Heuristic {
     fn integrate(&mut self, frame: &EncodedFrame) {
         for (p, y) in frame.map_points.iter().zip(&frame.features) {
             if let Some(k) = key_of(*p, &self.config) {
@@ -151,7 +150,7 @@ impl RunningMean {
     }
 }
 
-impl Mapper for RunningMean {
+impl MappingMethod for RunningMean {
     fn integrate(&mut self, frame: &EncodedFrame) {
         for (p, y) in frame.map_points.iter().zip(&frame.features) {
             if let Some(k) = key_of(*p, &self.config) {
@@ -194,7 +193,7 @@ impl CategoricalBki {
     }
 }
 
-impl Mapper for CategoricalBki {
+impl MappingMethod for CategoricalBki {
     fn integrate(&mut self, frame: &EncodedFrame) {
         let k = self.decoder.len();
         for (p, y) in frame.map_points.iter().zip(&frame.features) {
@@ -242,7 +241,7 @@ impl LatentBki {
     }
 }
 
-impl Mapper for LatentBki {
+impl MappingMethod for LatentBki {
     fn integrate(&mut self, frame: &EncodedFrame) {
         self.map
             .integrate(&frame.pose, &frame.points, &frame.features);
@@ -412,7 +411,7 @@ impl ObsLookup<D> for OnDevice {
     }
 }
 
-impl Mapper for OnDevice {
+impl MappingMethod for OnDevice {
     fn integrate(&mut self, frame: &EncodedFrame) {
         let evicted = &mut self.evicted;
         let tap = |v: &Evicted<'_, D>| record(evicted, v);

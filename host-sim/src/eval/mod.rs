@@ -7,7 +7,6 @@
 //! per-class IoU tables, [`sparsification`] the uncertainty analysis, [`figures`] the PNGs, and
 //! [`scenes`] the two default experiments the CLI runs (`scene_report` runs one end to end).
 
-pub mod cli;
 pub mod experiment;
 pub mod figures;
 pub mod methods;

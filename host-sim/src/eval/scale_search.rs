@@ -31,8 +31,8 @@
 //! so it is scored only when `--filter-size` allows it: `--filter-size` is the largest filter the robot
 //! affords. Score: the mean of validation accuracy and mIoU (unknown counts as wrong, as in the test).
 
-use super::experiment::Setup;
-use super::methods::{Decoder, EncodedFrame, Feature, LatentBki, Mapper, D};
+use super::experiment::ExperimentSettings;
+use super::methods::{Decoder, EncodedFrame, Feature, LatentBki, MappingMethod, D};
 use super::metrics::Confusion;
 use crate::sim::scale::preferred;
 use crate::sim::{mix_all, unit};
@@ -56,7 +56,7 @@ pub struct SplitFrame {
     pub points: Vec<[f32; 3]>,
     /// Their true classes.
     pub classes: Vec<u16>,
-    /// Their own features (unused by the maps; kept for the [`Mapper::predict`] signature).
+    /// Their own features (unused by the maps; kept for the [`MappingMethod::predict`] signature).
     pub features: Vec<Feature>,
 }
 
@@ -160,7 +160,7 @@ pub fn candidates(spacing: f32, max_filter: u8) -> Vec<Candidate> {
 
 /// One candidate's validation figures.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Scored {
+pub struct ScoredCandidate {
     /// The candidate.
     pub candidate: Candidate,
     /// Validation accuracy (unknown = wrong).
@@ -173,7 +173,7 @@ pub struct Scored {
     pub fits_device: bool,
 }
 
-impl Scored {
+impl ScoredCandidate {
     /// What is maximised: the mean of accuracy and mIoU.
     pub fn score(&self) -> f64 {
         0.5 * (self.accuracy + self.miou)
@@ -184,7 +184,7 @@ impl Scored {
 #[derive(Clone, Debug)]
 pub struct Choice {
     /// Every candidate, scored, in grid order.
-    pub scored: Vec<Scored>,
+    pub scored: Vec<ScoredCandidate>,
     /// Index of the best in `scored`.
     pub best: usize,
     /// The chosen configuration.
@@ -222,7 +222,7 @@ pub fn choose(
     base: &MapConfig,
     decoder: &Decoder,
     classes: usize,
-    setup: &Setup,
+    setup: &ExperimentSettings,
     fits_device: &(dyn Fn(&MapConfig) -> bool + Sync),
 ) -> anyhow::Result<Choice> {
     anyhow::ensure!(!candidates.is_empty(), "no candidate scale to score");
@@ -256,7 +256,7 @@ pub fn choose_uncached(
     base: &MapConfig,
     decoder: &Decoder,
     classes: usize,
-    setup: &Setup,
+    setup: &ExperimentSettings,
     fits_device: &(dyn Fn(&MapConfig) -> bool + Sync),
 ) -> anyhow::Result<Choice> {
     anyhow::ensure!(!candidates.is_empty(), "no candidate scale to score");
@@ -265,11 +265,11 @@ pub fn choose_uncached(
     let results = super::runner::parallel(
         candidates,
         |c| u64::from(c.filter).pow(3),
-        |c| -> anyhow::Result<Scored> {
+        |c| -> anyhow::Result<ScoredCandidate> {
             let config = c.config(base)?;
             let m = score(&split, &config, decoder, classes)?;
             bar.inc(1);
-            Ok(Scored {
+            Ok(ScoredCandidate {
                 candidate: *c,
                 accuracy: m.accuracy(),
                 miou: m.miou(),
@@ -279,7 +279,7 @@ pub fn choose_uncached(
         },
     );
     bar.finish_and_clear();
-    let scored: Vec<Scored> = results.into_iter().collect::<anyhow::Result<_>>()?;
+    let scored: Vec<ScoredCandidate> = results.into_iter().collect::<anyhow::Result<_>>()?;
     // The best score; on a tie the earlier candidate (smaller voxel, shorter ℓ: less smoothing).
     let best = (0..scored.len())
         .max_by(|&a, &b| {

@@ -3,21 +3,21 @@
 //! [`super::scenes`], which says *what* is mapped (the scene, its sensor and map scale); this is *how* an
 //! evaluation of it runs.
 
-use super::experiment::{self, Method, MethodResult, Setup};
+use super::experiment::{self, ExperimentSettings, Method, MethodResult};
 use super::figures::{self, TopDown};
 use super::methods::{Decoder, Radio};
 use super::runner;
-use super::scenes::{tile_query, Scene, SceneOptions, SceneSource};
+use super::scenes::{tile_query, SceneKind, SceneOptions, SceneSource};
 use super::sparsification::{self, Sparsification};
 use super::sweep::{Sweep, SweepPoint};
-use crate::sim::vocab::Vocabulary;
+use crate::sim::vocab::TextEmbeddings;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
 /// Everything one scene's experiment produced.
 pub struct Report {
     /// Scene.
-    pub scene: Scene,
+    pub scene: SceneKind,
     /// Method results, in table order.
     pub results: Vec<MethodResult>,
     /// Sparsification of the LatentBKI f = 3 map's uncertainty.
@@ -34,14 +34,14 @@ pub struct Report {
 
 /// Run one scene's experiment and write its pictures into `out/<scene>/`.
 pub fn run(
-    scene: Scene,
+    scene: SceneKind,
     options: &SceneOptions,
-    setup: &Setup,
+    setup: &ExperimentSettings,
     out: &Path,
     sweep: bool,
     link: Option<Box<dyn Radio>>,
 ) -> Result<Report> {
-    let vocab = Vocabulary::builtin();
+    let vocab = TextEmbeddings::builtin();
     let mut source = SceneSource::new(scene, options, setup.seed)?;
     let (train, test) = source.train_and_test()?;
     let dec = experiment::decoding(&vocab, &train, setup)?;
@@ -60,7 +60,7 @@ pub fn run(
             source.scale_note()
         );
     }
-    let setup = &Setup {
+    let setup = &ExperimentSettings {
         device_window: source.device_window(&config),
         ..*setup
     };
@@ -73,8 +73,8 @@ pub fn run(
         })
         .collect();
     let budgets = match scene {
-        Scene::Tile => &options.sweep_tile,
-        Scene::Indoor => &options.sweep_indoor,
+        SceneKind::Tile => &options.sweep_tile,
+        SceneKind::Indoor => &options.sweep_indoor,
     };
     let sweep = if sweep && !budgets.is_empty() {
         Sweep::new(
@@ -138,8 +138,8 @@ pub fn run(
     figs.push(p);
     let queries: Vec<String> = if options.queries.is_empty() {
         match scene {
-            Scene::Tile => tile_query(&dec.classes, &vocab).into_iter().collect(),
-            Scene::Indoor => vec![scene.default_query().to_string()],
+            SceneKind::Tile => tile_query(&dec.classes, &vocab).into_iter().collect(),
+            SceneKind::Indoor => vec![scene.default_query().to_string()],
         }
     } else {
         options.queries.clone()

@@ -11,7 +11,7 @@ use super::metrics::Confusion;
 
 /// One evaluated point with its uncertainties (all of its voxel; λ > 2).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Scored {
+pub struct ScoredPoint {
     /// True class.
     pub truth: u16,
     /// Predicted class.
@@ -33,7 +33,7 @@ pub struct Scored {
 }
 
 /// A ranking: its name and its key (larger = more uncertain).
-pub type Ranking = (&'static str, fn(&Scored) -> f32);
+pub type Ranking = (&'static str, fn(&ScoredPoint) -> f32);
 
 /// The rankings of the analysis, in table order.
 pub const RANKINGS: [Ranking; 7] = [
@@ -67,7 +67,7 @@ pub fn default_fractions() -> Vec<f64> {
 /// The curve for a ranking: `order` lists point indices from the most to the least uncertain.
 pub fn curve(
     name: &str,
-    points: &[Scored],
+    points: &[ScoredPoint],
     order: &[usize],
     classes: usize,
     fractions: &[f64],
@@ -93,14 +93,14 @@ pub fn curve(
 }
 
 /// Indices sorted by descending key (ties by index, so the order is deterministic).
-pub fn rank_by(points: &[Scored], key: impl Fn(&Scored) -> f32) -> Vec<usize> {
+pub fn rank_by(points: &[ScoredPoint], key: impl Fn(&ScoredPoint) -> f32) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..points.len()).collect();
     idx.sort_by(|&a, &b| key(&points[b]).total_cmp(&key(&points[a])).then(a.cmp(&b)));
     idx
 }
 
 /// The oracle ranking: wrong points first.
-pub fn oracle_order(points: &[Scored]) -> Vec<usize> {
+pub fn oracle_order(points: &[ScoredPoint]) -> Vec<usize> {
     rank_by(points, |p| if p.truth != p.predicted { 1.0 } else { 0.0 })
 }
 
@@ -130,7 +130,7 @@ pub struct Sparsification {
 }
 
 /// Compute every curve and AUSE.
-pub fn analyse(points: &[Scored], classes: usize) -> Sparsification {
+pub fn analyse(points: &[ScoredPoint], classes: usize) -> Sparsification {
     let fr = default_fractions();
     let oracle = curve("oracle", points, &oracle_order(points), classes, &fr);
     let mut curves: Vec<Curve> = RANKINGS

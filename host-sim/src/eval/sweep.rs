@@ -2,7 +2,7 @@
 //! own module because it is a second kind of job for the worker pool, with its own inputs (one encoded
 //! sequence per budget) and its own result (a point per budget and filter), beside the methods' runs ([`super::runner`]).
 
-use super::experiment::{encode, run_one, Decoding, Inputs, Method, Setup};
+use super::experiment::{encode, run_one, Decoding, ExperimentSettings, Inputs, Method};
 use super::methods::EncodedFrame;
 use crate::sim::Sequence;
 use indicatif::ProgressBar;
@@ -53,7 +53,7 @@ impl Sweep {
         budgets: &[usize],
         filters: &[u8],
         dec: &Decoding,
-        setup: &Setup,
+        setup: &ExperimentSettings,
     ) -> Self {
         let runs = budgets
             .iter()
@@ -89,7 +89,7 @@ impl Sweep {
         r: usize,
         filter: u8,
         dec: &Decoding,
-        setup: &Setup,
+        setup: &ExperimentSettings,
         bar: &ProgressBar,
     ) -> anyhow::Result<SweepPoint> {
         let run = &self.runs[r];

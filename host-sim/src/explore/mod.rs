@@ -1,4 +1,4 @@
-//! `host-sim explore`: a robot that chooses where to look next by information gain, against random choice and
+//! Exploration: a robot that chooses where to look next by information gain, against random choice and
 //! nearest-frontier choice, in the procedural house.
 //!
 //! Why: the paper motivates its uncertainty by active perception but only reports it. Here the map's own
@@ -24,13 +24,11 @@
 //! scripted loop of `eval --scene indoor` sees (majority class; a fixed quarter of them, spread evenly); a
 //! voxel the map cannot answer is wrong.
 
-mod command;
 mod rooms;
 mod tour;
 mod truth;
 pub mod world;
 
-pub use command::{explore, ExploreArgs};
 pub use truth::Truth;
 
 use crate::eval::experiment::Decoding;
@@ -45,7 +43,7 @@ use latentbki::{info_gain::voxel_gain, kernel::KernelLut, key::VoxelKey, MapConf
 use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rustc_hash::FxHashMap;
-use world::{View, World};
+use world::{Viewpoint, World};
 
 /// How the next view is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -176,9 +174,15 @@ impl Robot<'_> {
         unknown as f32 / fp.hits.len().max(1) as f32
     }
 
-    fn choose(&mut self, planner: Planner, dist: &[f32], here: usize, budget: f32) -> Option<View> {
+    fn choose(
+        &mut self,
+        planner: Planner,
+        dist: &[f32],
+        here: usize,
+        budget: f32,
+    ) -> Option<Viewpoint> {
         let left = budget - self.travelled;
-        let options: Vec<(View, &world::Footprint, f32)> = self
+        let options: Vec<(Viewpoint, &world::Footprint, f32)> = self
             .world
             .views
             .iter()
@@ -188,7 +192,7 @@ impl Robot<'_> {
         if options.is_empty() {
             return None;
         }
-        let best_by = |key: &dyn Fn(&(View, &world::Footprint, f32)) -> f32| {
+        let best_by = |key: &dyn Fn(&(Viewpoint, &world::Footprint, f32)) -> f32| {
             options
                 .iter()
                 .max_by(|a, b| key(a).total_cmp(&key(b)))
@@ -290,7 +294,7 @@ pub fn run(
             frames: robot.frame,
         }
     };
-    robot.capture(&world.pose(View {
+    robot.capture(&world.pose(Viewpoint {
         cell: here,
         yaw: 0.0,
     }));
@@ -307,7 +311,7 @@ pub fn run(
             robot.travelled += ((to[0] - from[0]).powi(2) + (to[1] - from[1]).powi(2)).sqrt();
             if i % 2 == 1 && c != goal.cell {
                 let yaw = (to[1] - from[1]).atan2(to[0] - from[0]);
-                robot.capture(&world.pose(View { cell: c, yaw }));
+                robot.capture(&world.pose(Viewpoint { cell: c, yaw }));
                 samples.push(measure(&robot));
                 if replan {
                     here = c;

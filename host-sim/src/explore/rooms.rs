@@ -9,7 +9,7 @@
 //! what it holds and a room already exhausted is left. Measured in `docs/numbers.md` (exploration).
 
 use super::tour::Candidate;
-use super::world::View;
+use super::world::Viewpoint;
 use super::Robot;
 use latentbki::info_gain::voxel_gain;
 
@@ -25,7 +25,7 @@ impl Robot<'_> {
     }
 
     /// The best view in the first room of the best room tour, among `options` (all within the budget).
-    pub(super) fn choose_room_tour(&self, options: &[Candidate]) -> Option<View> {
+    pub(super) fn choose_room_tour(&self, options: &[Candidate]) -> Option<Viewpoint> {
         let rooms = self.world.scene.rooms.len();
         let room: Vec<Option<usize>> = options.iter().map(|o| self.room_of(o.0.cell)).collect();
         // Each room's worth: Σ gain(λ, largest weight any of its views would give) over what they reach.

@@ -9,7 +9,7 @@
 //! onto the same surfaces count them once. Measured in `docs/numbers.md` (exploration): it is not the
 //! default, because it did not win on the held-out houses.
 
-use super::world::{Footprint, View};
+use super::world::{Footprint, Viewpoint};
 use super::Robot;
 use latentbki::info_gain::voxel_gain;
 use latentbki::key::VoxelKey;
@@ -22,7 +22,7 @@ const FIRST: usize = 12;
 const POOL: usize = 48;
 
 /// A candidate: its view, what it would see, its driving distance from here.
-pub(super) type Candidate<'a> = (View, &'a Footprint, f32);
+pub(super) type Candidate<'a> = (Viewpoint, &'a Footprint, f32);
 
 impl Robot<'_> {
     /// Score of a footprint given the kernel weight already planned for (`planned`, added to λ).
@@ -35,7 +35,7 @@ impl Robot<'_> {
 
     /// The first stop of the tour of `self.horizon` stops of highest Σ score / Σ (path + offset), among
     /// `options` (all within the remaining budget `left`).
-    pub(super) fn choose_tour(&self, options: &[Candidate], left: f32) -> Option<View> {
+    pub(super) fn choose_tour(&self, options: &[Candidate], left: f32) -> Option<Viewpoint> {
         let offset = self.utility_offset;
         let scores: Vec<f32> = options.iter().map(|o| self.score(o.1)).collect();
         let rate = |i: usize| scores[i] / (options[i].2 + offset);
@@ -52,7 +52,7 @@ impl Robot<'_> {
         }
         // Driving distances from each stop, computed once per choice.
         let mut distances: FxHashMap<usize, Vec<f32>> = FxHashMap::default();
-        let mut best: Option<(f32, View)> = None;
+        let mut best: Option<(f32, Viewpoint)> = None;
         for &f in &first {
             let (view, fp, d0) = options[f];
             let mut planned: FxHashMap<VoxelKey, f32> = FxHashMap::default();

@@ -38,7 +38,7 @@ pub const RAYS: (u32, u32) = (24, 18);
 
 /// A candidate view: a place and a heading.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct View {
+pub struct Viewpoint {
     /// Grid cell index of the place.
     pub cell: usize,
     /// Heading, radians.
@@ -66,7 +66,7 @@ pub struct World {
     dims: [usize; 2],
     free: Vec<bool>,
     /// Candidate views and what each would see.
-    pub views: Vec<(View, Footprint)>,
+    pub views: Vec<(Viewpoint, Footprint)>,
     /// A dense index of every voxel some candidate view would reach.
     pub slots: FxHashMap<VoxelKey, u32>,
     /// By slot: whether some candidate view's rays hit the voxel (it holds a surface the views can see).
@@ -127,7 +127,7 @@ impl World {
                 continue;
             }
             for h in 0..HEADINGS {
-                let view = View {
+                let view = Viewpoint {
                     cell,
                     yaw: h as f32 * std::f32::consts::TAU / HEADINGS as f32,
                 };
@@ -179,7 +179,7 @@ impl World {
     }
 
     /// The camera pose of a view.
-    pub fn pose(&self, view: View) -> Isometry3<f32> {
+    pub fn pose(&self, view: Viewpoint) -> Isometry3<f32> {
         let c = self.centre(view.cell);
         camera_pose(
             [c[0], c[1], self.scene.floor + CAMERA_HEIGHT],
@@ -255,13 +255,13 @@ impl World {
     }
 
     /// The points a view is predicted to see (the explorers' ray grid cast against the surfaces), map frame.
-    pub fn predicted(&self, view: View) -> Vec<[f32; 3]> {
+    pub fn predicted(&self, view: Viewpoint) -> Vec<[f32; 3]> {
         self.predicted_grid(view, RAYS)
     }
 
     /// The same with another grid of (columns, rows) rays (the view-score benchmark also scores the earlier
     /// 12 × 9, to show how the cost grows with the voxels a view reaches).
-    pub fn predicted_grid(&self, view: View, rays: (u32, u32)) -> Vec<[f32; 3]> {
+    pub fn predicted_grid(&self, view: Viewpoint, rays: (u32, u32)) -> Vec<[f32; 3]> {
         self.predicted_points(&self.pose(view), &DepthCamera::default(), rays)
     }
 

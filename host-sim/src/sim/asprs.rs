@@ -63,7 +63,7 @@ mod tests {
         assert_eq!(class_phrase(255), "class 255");
         assert_eq!(asprs_phrases().len(), 22);
         // The committed table embeds every one of them.
-        let vocab = super::super::vocab::Vocabulary::builtin();
+        let vocab = super::super::vocab::TextEmbeddings::builtin();
         for p in asprs_phrases() {
             vocab.get(p).unwrap();
         }

@@ -9,6 +9,7 @@
 pub mod asprs;
 pub mod encoder;
 pub mod flight;
+pub mod flight_plan;
 pub mod indoor;
 pub mod pca;
 pub mod scale;

@@ -83,7 +83,7 @@ pub fn scaled_sensor_floor(spacing: f32) -> f32 {
 }
 
 /// The device map's window, in voxels, for a sensor range (the range plus the kernel's reach, at least
-/// 1 m: what [`crate::eval::scenes::SceneSource::device_window`] gives).
+/// 1 m: the window the evaluation's scene source gives its device map).
 pub fn window_voxels(range: f32, voxel: f32, filter: u8) -> f32 {
     ((range + (f32::from(filter) * voxel).max(1.0)) / voxel).ceil()
 }

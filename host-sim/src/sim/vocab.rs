@@ -9,11 +9,15 @@ use std::fmt;
 /// Dimension of the committed text embeddings.
 pub const FULL_DIM: usize = 384;
 
+/// The dimension the PCA compresses them to: every host map's, the demo robot's and the base station's
+/// features (the paper's 64; the wire's D). Defined once on the host.
+pub const D: usize = 64;
+
 const TABLE: &str = include_str!("../../data/text-embeddings.tsv");
 
 /// Phrases and their unit-length embeddings, in file order.
 #[derive(Clone, Debug)]
-pub struct Vocabulary {
+pub struct TextEmbeddings {
     entries: Vec<(String, Box<[f32; FULL_DIM]>)>,
 }
 
@@ -39,7 +43,7 @@ impl fmt::Display for UnknownWord {
 
 impl std::error::Error for UnknownWord {}
 
-impl Vocabulary {
+impl TextEmbeddings {
     /// The table compiled into the binary.
     pub fn builtin() -> Self {
         Self::parse(TABLE).expect("the committed embedding table is well formed")
@@ -78,7 +82,7 @@ impl Vocabulary {
     }
 
     /// Add `other`'s phrases that this table lacks (e.g. a feature space's `vocabulary.tsv`).
-    pub fn extend(&mut self, other: Vocabulary) {
+    pub fn extend(&mut self, other: TextEmbeddings) {
         for (phrase, v) in other.entries {
             if !self.entries.iter().any(|(p, _)| *p == phrase) {
                 self.entries.push((phrase, v));

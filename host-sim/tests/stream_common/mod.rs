@@ -14,7 +14,7 @@ use latentbki::{
     obs::ObsStats, packed_len, sink::Evicted, stats::VoxelStats, MapConfig, Mapper, Setup,
 };
 
-pub const D: usize = 64;
+pub use host_sim::sim::vocab::D;
 pub const F: usize = 384;
 pub const P: usize = packed_len(D);
 pub const CAP: usize = 12_000;

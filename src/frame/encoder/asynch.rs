@@ -1,5 +1,5 @@
 //! The tick over `embedded-io-async` (feature `async`): the same plan-write-commit loop as the blocking
-//! tick (`scheduler`), the write awaited. Every decision — re-sends first, the pending frame, header,
+//! tick (`blocking`), the write awaited. Every decision — re-sends first, the pending frame, header,
 //! statistics, queued then live voxels, what a failed write leaves — is the scheduler's, so an async
 //! firmware writes the bytes a blocking one writes.
 

@@ -185,6 +185,7 @@ pub struct FrameEncoder<const D: usize, const QB: usize, const N: usize> {
 
 #[cfg(feature = "async")]
 mod asynch;
+mod blocking;
 mod packer;
 mod queue;
 mod scheduler;

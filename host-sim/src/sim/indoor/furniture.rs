@@ -2,11 +2,11 @@
 //! shell ([`super::IndoorScene::generate`]: walls, doors, windows) because it is the long, per-room-type
 //! part of the scene, and the part one changes to make another kind of room.
 
-use super::{Builder, Room};
+use super::{Builder, RoomPlan};
 
 /// Furniture by room type: against walls, or in a free spot, avoiding overlaps and the robot's corridors
 /// (the room's midlines, which lead to the doors).
-pub(super) fn furnish(b: &mut Builder, r: &Room, height: f32, outer: (f32, f32)) {
+pub(super) fn furnish(b: &mut Builder, r: &RoomPlan, height: f32, outer: (f32, f32)) {
     let mut placed: Vec<([f32; 2], [f32; 2])> = Vec::new();
     let c = [(r.min[0] + r.max[0]) / 2.0, (r.min[1] + r.max[1]) / 2.0];
     // Keep 0.4 m either side of the robot's corridors free: from the centre to the doors, which are in

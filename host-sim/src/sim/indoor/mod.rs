@@ -72,7 +72,7 @@ impl Aabb {
 
 /// One room: its floor rectangle and type.
 #[derive(Clone, Copy, Debug)]
-pub struct Room {
+pub struct RoomPlan {
     /// Minimum xy corner (inner face of the walls).
     pub min: [f32; 2],
     /// Maximum xy corner.
@@ -87,7 +87,7 @@ pub struct IndoorScene {
     /// All boxes.
     pub boxes: Vec<Aabb>,
     /// The four rooms (row-major: (0,0), (1,0), (0,1), (1,1)).
-    pub rooms: Vec<Room>,
+    pub rooms: Vec<RoomPlan>,
     /// Door centres (xy) in the order the loop passes them.
     pub doors: Vec<[f32; 2]>,
     /// Ceiling height above the floor, metres.
@@ -188,7 +188,7 @@ impl IndoorScene {
                     if i == 0 { xs[1] } else { xs[2] },
                     if j == 0 { ys[1] } else { ys[2] },
                 ];
-                rooms.push(Room {
+                rooms.push(RoomPlan {
                     min,
                     max,
                     kind: kinds[j * 2 + i],

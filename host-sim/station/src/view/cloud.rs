@@ -9,7 +9,7 @@
 //! at most once a second as the map grows and at once for a new phrase; the committed layout's top-down
 //! heat panel shows it (as squares), the cube layer stays for 3D.
 
-use super::scene::{Layer, Scene, FRAME};
+use super::scene::{DecodedMap, Layer, FRAME};
 use foxglove::messages::{
     packed_element_field::NumericType, PackedElementField, PointCloud, Pose, Quaternion, Timestamp,
     Vector3,
@@ -23,7 +23,7 @@ const STRIDE: u32 = 20;
 
 /// The scene's heat as one point cloud (voxel centres, frame [`FRAME`]).
 pub fn heat_cloud<const D: usize, const K: usize>(
-    scene: &Scene<D, K>,
+    scene: &DecodedMap<D, K>,
     time: Timestamp,
 ) -> PointCloud {
     let field = |name: &str, offset: u32, ty: NumericType| PackedElementField {
@@ -70,7 +70,7 @@ pub fn heat_cloud<const D: usize, const K: usize>(
 
 /// [`heat_cloud`] as it goes on the wire.
 pub fn heat_cloud_bytes<const D: usize, const K: usize>(
-    scene: &Scene<D, K>,
+    scene: &DecodedMap<D, K>,
     time: Timestamp,
 ) -> Vec<u8> {
     let msg = heat_cloud(scene, time);

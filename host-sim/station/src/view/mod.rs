@@ -44,10 +44,10 @@ mod shared;
 mod worker;
 
 pub use cloud::{heat_cloud, HEAT_CLOUD_TOPIC};
-/// The Foxglove SDK the view is built on (its message types, for callers of [`Scene`]).
+/// The Foxglove SDK the view is built on (its message types, for callers of [`DecodedMap`]).
 pub use foxglove;
 pub use live::Viewer;
-pub use scene::{BlockKey, Layer, Scene, VoxelRow};
+pub use scene::{BlockKey, DecodedMap, Layer, VoxelRow};
 pub use shared::RecordingSummary;
 pub use worker::ViewerSummary;
 

@@ -15,7 +15,7 @@
 //! compressed (the cubes' repeated sizes, orientations and colours shrink ≈ 9×).
 
 use super::cloud::heat_cloud_bytes;
-use super::scene::{Layer, Scene};
+use super::scene::{DecodedMap, Layer};
 use super::shared::{Channels, RecordingSummary};
 use super::ViewError;
 use foxglove::messages::Timestamp;
@@ -92,7 +92,7 @@ impl Recording {
     /// Write the changed layers whole if one is due (or `now`), with the frame, legend and status.
     pub(super) fn snapshot<const D: usize, const K: usize>(
         &mut self,
-        scene: Option<&mut Scene<D, K>>,
+        scene: Option<&mut DecodedMap<D, K>>,
         frame: Option<&[u8]>,
         status: Option<&[u8]>,
         now: bool,

@@ -5,7 +5,9 @@
 use super::guard::ViewRequests;
 use super::scene::Layer;
 use super::Vocabulary;
-use crate::{GlobalVoxel, ReceiveStats, SessionState};
+use crate::base_station::ReceiveStats;
+use crate::global_map::GlobalVoxel;
+use crate::session::SessionState;
 use foxglove::{Context, RawChannel, Schema, SinkId};
 use latentbki::key::VoxelKey;
 use latentbki::wire::SessionConfig;
