@@ -1,5 +1,5 @@
-//! `host-sim eval --scene changing`: a house whose furniture changes class mid-run, mapped with and without
-//! forgetting ([`latentbki::forget`]).
+//! A house whose furniture changes class mid-run, mapped with and without forgetting
+//! ([`latentbki::forget`]); `host-sim eval --scene changing` runs it.
 //!
 //! Why this scene: a static map keeps voting for what a place *was*. The robot drives the scripted loop of
 //! the house; after three loops every piece of furniture in the first room the loop visits (where the

@@ -1,5 +1,5 @@
-//! `host-sim feature-space --classes floor,wall,sofa --out DIR`: the feature space a new robot's classes
-//! live in, for both ends of the link.
+//! The feature space a new robot's classes live in, for both ends of the link (written by `host-sim
+//! feature-space --classes floor,wall,sofa --out DIR`, [`crate::cli::feature_space`]):
 //!
 //! - `DIR/pca.npz` — the projection 384 → 64 (`mean`, `components`) the base station decodes with
 //!   (`map-query --pca DIR/pca.npz --classes …`); its CRC-32 is the feature-space id the robot declares.
