@@ -31,12 +31,14 @@ mod run;
 #[cfg(feature = "async")]
 mod run_async;
 mod scene;
+mod shipped;
 
 pub use codebook::*;
 pub use run::*;
 #[cfg(feature = "async")]
 pub use run_async::run_async;
 pub use scene::*;
+pub use shipped::*;
 
 #[cfg(test)]
 mod tests;

@@ -10,8 +10,8 @@ use latentbki::frame::{EncoderSettings, Resend};
 use latentbki::local_map::{Counters, LocalMap};
 use latentbki::mapper::{DrainError, Mapper, Setup, SetupError};
 use latentbki::nalgebra::Isometry3;
-use latentbki::quant::{Cooling, MeanWeights};
-use latentbki::wire::{LinkStats, SummaryCodec};
+use latentbki::quant::Cooling;
+use latentbki::wire::LinkStats;
 
 /// Brackets the map's work inside [`integrate_frame`] (the firmware counts instructions between the two
 /// calls; the host does nothing), and — for a host tool that must know which points the map took (the
@@ -299,40 +299,6 @@ pub const SELF_TEST: [Scenario; 9] = [
         int8_scale: SELF_TEST_INT8_SCALE,
     },
 ];
-
-/// The features of `latentbki` the boards link (this crate's `full` feature, which the boards enable; the
-/// demo's robot uses exactly these), or none in the minimal build.
-#[cfg(feature = "full")]
-pub const BOARD_FEATURES: &[&str] = &["rice-codes", "mean-weights"];
-/// See above.
-#[cfg(not(feature = "full"))]
-pub const BOARD_FEATURES: &[&str] = &[];
-
-/// How the self-test's summaries go on the wire. The boards' build (`full`): Rice-coded means
-/// (`latentbki::wire::rice`, steps following ‖m‖ and the point count), no lead band (the codebook's
-/// components spread alike), 8 scatter blocks. The minimal build: the packed 3-bit codes of
-/// [`SummaryCodec::DEFAULT`]. Measured on the nine scenarios (`cargo run --release -p host-sim --example
-/// firmware_accuracy -- thumbv7em --twin`: the base station against the f32 reference, RMS ‖Δμ‖/‖μ‖):
-/// packed 3-bit 0.1126 (most of it the wire's: with 8-bit packed codes 0.0236), Rice 0.0299, Rice and
-/// [`SELF_TEST_MEAN_WEIGHTS`] 0.0228.
-#[cfg(feature = "full")]
-pub const SELF_TEST_CODEC: SummaryCodec = SummaryCodec {
-    rice: true,
-    ..SummaryCodec::DEFAULT
-};
-/// See above.
-#[cfg(not(feature = "full"))]
-pub const SELF_TEST_CODEC: SummaryCodec = SummaryCodec::DEFAULT;
-
-/// Weights of the self-test maps' mean codes: [`MeanWeights::from_spreads`] of the scene's features, whose
-/// 64 components spread alike (a codebook sign of ±1/8 plus noise 0.1 each), so [`MeanWeights::EQUAL`]: all
-/// ones on the finer grid (with Rice summaries 0.0299 → 0.0228, see [`SELF_TEST_CODEC`]). Without
-/// `mean-weights` (the minimal build) [`MeanWeights::ONES`].
-#[cfg(feature = "full")]
-pub const SELF_TEST_MEAN_WEIGHTS: MeanWeights = MeanWeights::EQUAL;
-/// See above.
-#[cfg(not(feature = "full"))]
-pub const SELF_TEST_MEAN_WEIGHTS: MeanWeights = MeanWeights::ONES;
 
 /// Scale of the self-test's int8 features: codes of ±127 reach ±0.635, beyond the codebook's ±1/8 plus
 /// five standard deviations of its 0.1 noise.
