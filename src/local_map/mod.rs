@@ -22,7 +22,7 @@
 //!   approximation of least-recently-observed. Hot voxels are never evicted for room.
 //! - **Window**: the map follows the robot; voxels farther than the window radius are evicted in place. A
 //!   move reads every key but writes only the evicted slots: nothing is copied.
-//! - **Every eviction goes to an [`EvictionSink`]** with the voxel's observation statistics; if the sink
+//! - **Every eviction goes to an [`EvictionSink`](crate::sink::EvictionSink)** with the voxel's observation statistics; if the sink
 //!   refuses, the voxel stays and the refusal is counted. Nothing is forgotten silently.
 //!
 //! The parts live in private submodules: `index` (key → slot), `slots` (the ring, CLOCK eviction, flush),
