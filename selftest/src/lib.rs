@@ -30,6 +30,7 @@ pub mod loopback;
 mod run;
 #[cfg(feature = "async")]
 mod run_async;
+mod scenarios;
 mod scene;
 mod shipped;
 
@@ -37,6 +38,7 @@ pub use codebook::*;
 pub use run::*;
 #[cfg(feature = "async")]
 pub use run_async::run_async;
+pub use scenarios::*;
 pub use scene::*;
 pub use shipped::*;
 

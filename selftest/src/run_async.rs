@@ -4,7 +4,8 @@
 //! blocking host twin (`boards/embassy-mps2-an386`, `host-sim/tests/stream_embassy.rs`).
 
 use crate::loopback::Loopback;
-use crate::run::{integrate_frame, Chunk, FrameReport, Probe, RunError, RunReport, Scenario};
+use crate::run::{integrate_frame, Chunk, FrameReport, Probe, RunError, RunReport};
+use crate::scenarios::Scenario;
 use crate::SELF_TEST_ROBOT;
 use latentbki::forget::MapClock;
 use latentbki::local_map::{Counters, LocalMap};
