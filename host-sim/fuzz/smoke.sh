@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Every fuzz target for a short run from the committed seed corpus (seeds/<target>/, written by
 # `cargo run --release -p host-sim --example fuzz_seeds`); fails on a crash, leak or timeout, and the
-# crashing input is left in host-sim/fuzz/artifacts/<target>/. CI's `fuzz` job runs it with 30 s per target.
+# crashing input is left in host-sim/fuzz/artifacts/<target>/. CI's `fuzz` job runs it with 15 s per target.
 # Needs a nightly toolchain and cargo-fuzz; installs both if missing.
 # Usage: bash host-sim/fuzz/smoke.sh [seconds per target, default 5]
 set -euo pipefail
