@@ -100,13 +100,14 @@ impl SummaryCodec {
     /// Bits per mean component of a summary of `count` points: `mean_bits` + min(⌊log₂ n⌋,
     /// `mean_bits_growth`), at most 8.
     pub const fn bits_for(self, count: u32) -> u32 {
-        let grow = if count > 1 { count.ilog2() } else { 0 };
-        let grow = if grow < self.mean_bits_growth as u32 {
-            grow
-        } else {
-            self.mean_bits_growth as u32
-        };
-        let bits = self.mean_bits as u32 + grow;
+        self.grown_bits(if count > 1 { count.ilog2() } else { 0 })
+    }
+
+    /// `mean_bits` + min(`grow`, `mean_bits_growth`), at most 8: the width rule [`Self::bits_for`] and
+    /// [`Self::rest_bits_for`] share, each with its own growth per doubling of the count.
+    const fn grown_bits(self, grow: u32) -> u32 {
+        let growth = self.mean_bits_growth as u32;
+        let bits = self.mean_bits as u32 + if grow < growth { grow } else { growth };
         if bits < 8 {
             bits
         } else {
@@ -123,22 +124,11 @@ impl SummaryCodec {
         if self.lead == 0 {
             return self.bits_for(count);
         }
-        let grow = if count > 1 {
+        self.grown_bits(if count > 1 {
             count.ilog2().div_ceil(2)
         } else {
             0
-        };
-        let grow = if grow < self.mean_bits_growth as u32 {
-            grow
-        } else {
-            self.mean_bits_growth as u32
-        };
-        let bits = self.mean_bits as u32 + grow;
-        if bits < 8 {
-            bits
-        } else {
-            8
-        }
+        })
     }
 
     /// Bits per component of the lead band of a summary of `count` points: [`Self::bits_for`] +
