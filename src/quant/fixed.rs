@@ -41,6 +41,7 @@ macro_rules! per_dim_step {
 }
 
 mod bits;
+#[cfg(feature = "sparse-cooling")]
 mod sparse;
 use bits::*;
 
@@ -243,6 +244,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // own dimension's means (no array of them).
         let rn = recip(n);
         let ctx = ScatterUnits::new(fix, n0, n);
+        #[cfg(feature = "sparse-cooling")]
         if n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
             if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, dither) {
                 return merged;

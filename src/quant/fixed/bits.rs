@@ -224,12 +224,14 @@ pub(super) fn count_of(bits: u32) -> u32 {
     shift(p.m, p.e)
 }
 
+#[cfg(feature = "sparse-cooling")]
 /// Bits of `v` (0 for 0): the position above its highest set bit.
 #[inline(always)]
 pub(super) fn bit_len(v: u32) -> u32 {
     32 - lz(v)
 }
 
+#[cfg(feature = "sparse-cooling")]
 /// `x · w / 2¹⁶` for a 16-bit `w`, floored, in 32-bit products (no 64-bit one on v6-M).
 #[inline(always)]
 pub(super) fn mul_q16(x: u32, w: u32) -> u32 {
@@ -238,6 +240,7 @@ pub(super) fn mul_q16(x: u32, w: u32) -> u32 {
         .wrapping_add((x & 0xFFFF).wrapping_mul(w) >> 16)
 }
 
+#[cfg(feature = "sparse-cooling")]
 /// `v · 2^s`: saturated to `u32::MAX` when shifting left, truncated when shifting right.
 #[inline(always)]
 pub(super) fn shl_sat(v: u32, s: i32) -> u32 {
@@ -253,6 +256,7 @@ pub(super) fn shl_sat(v: u32, s: i32) -> u32 {
     }
 }
 
+#[cfg(feature = "sparse-cooling")]
 /// Packed codes read one after another ([`super::super::pack`]'s layout is one little-endian bit stream per
 /// section): one byte load per 8 bits, no per-code address arithmetic.
 pub(super) struct CodeReader<'a> {
@@ -261,6 +265,7 @@ pub(super) struct CodeReader<'a> {
     bits: u32,
 }
 
+#[cfg(feature = "sparse-cooling")]
 impl<'a> CodeReader<'a> {
     pub(super) fn new(data: &'a [u8]) -> Self {
         Self {
@@ -284,6 +289,7 @@ impl<'a> CodeReader<'a> {
     }
 }
 
+#[cfg(feature = "sparse-cooling")]
 /// Codes written one after another into a section, [`CodeReader`]'s inverse.
 pub(super) struct CodeWriter<'a> {
     data: core::slice::IterMut<'a, u8>,
@@ -291,6 +297,7 @@ pub(super) struct CodeWriter<'a> {
     bits: u32,
 }
 
+#[cfg(feature = "sparse-cooling")]
 impl<'a> CodeWriter<'a> {
     pub(super) fn new(data: &'a mut [u8]) -> Self {
         Self {

@@ -1,3 +1,4 @@
+#[cfg(feature = "sparse-cooling")]
 use super::sparse::SPARSE_MAX_NEW;
 use super::*;
 use crate::obs::ObsStats;
@@ -243,6 +244,7 @@ fn a_lone_first_point_codes_its_value() {
 /// The sparse path alone (a few points into a voxel of many, the scanning LiDAR's cooling): taken for most
 /// such merges, and within one code step of the exact merge, mean and scatter; its codes decode as the
 /// f32 path's do (same scale kept, same count).
+#[cfg(feature = "sparse-cooling")]
 #[test]
 fn sparse_merges_match_the_exact_merge() {
     let fix = Int8Fix::new(S);
