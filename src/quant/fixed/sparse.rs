@@ -95,15 +95,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // halving (an octave per 4 keys).
         let base_old = u32::from(self.psi_base);
         let mut table = [0u32; KEYS];
-        // Rolled (the trip count hidden from the optimiser): flash.
-        for c in (0..core::hint::black_box(KEYS)).rev() {
-            let t = match table.get(c + 4) {
+        for c in (0..KEYS).rev() {
+            table[c] = match table.get(c + 4) {
                 Some(&t) => t.div_ceil(2),
                 None => ctx.old_units(c as u32 + base_old),
             };
-            if let Some(e) = table.get_mut(c) {
-                *e = t;
-            }
         }
         if table[KEYS - 1] >= 1 << 30 {
             return None; // saturated: the table does not reach
@@ -112,41 +108,25 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let mut out = [0u8; P];
         let (mu_out, psi_out) = out.split_at_mut(super::super::section_len(D, MU_BITS));
         let (mu_in, psi_in) = self.codes.split_at(super::super::section_len(D, MU_BITS));
-        // Two loops, mean then scatter (each with its own copy of the dither stream: bytes 0 and 2 of a
-        // step for the means, 1 and 3 for the scatters, as `reencode`): on v6-M one loop kept so many values
-        // live that a third of its instructions were spills.
-        let (mut mu_r, mut mu_w) = (CodeReader::new(mu_in), CodeWriter::new(mu_out));
-        let mut max_u = 0u32;
+        let (mut mu_r, mut psi_r, mut mu_w) = (
+            CodeReader::new(mu_in),
+            CodeReader::new(psi_in),
+            CodeWriter::new(mu_out),
+        );
+        let mut keys = [0u8; D];
+        let (mut max_u, mut top) = (0u32, 0usize);
         let mut dith = dither.clone();
         let mut d = 0;
         for i in 0..core::hint::black_box(D) {
             d = if i % 2 == 0 { dith.next() } else { d >> 16 };
+            let (sum, sq) = (sums.sum(i), sums.square(i));
             let q = (mu_r.next(MU_BITS) << (32 - MU_BITS)) as i32 >> (32 - MU_BITS);
-            let t = sums.sum(i).wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
+            let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
             let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
             max_u = max_u.max(u.unsigned_abs());
             let code = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
             mu_w.put(MU_BITS, code as u32 & ((1 << MU_BITS) - 1));
-        }
-        mu_w.finish();
-        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`).
-        let full = (MU_QMAX as u32) << 8;
-        if max_u > full || max_u * 4 < full {
-            return None;
-        }
 
-        let (mut mu_r, mut psi_r) = (CodeReader::new(mu_in), CodeReader::new(psi_in));
-        let mut keys = [0u8; D];
-        let mut top = 0usize;
-        let mut dith = dither.clone();
-        for i in 0..core::hint::black_box(D) {
-            d = if i % 2 == 0 {
-                dith.next() >> 8
-            } else {
-                d >> 16
-            };
-            let (sum, sq) = (sums.sum(i), sums.square(i));
-            let q = (mu_r.next(MU_BITS) << (32 - MU_BITS)) as i32 >> (32 - MU_BITS);
             let y =
                 ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
             let mut s = shl_sat(mul_q16(y.wrapping_mul(y) as u32, w), wsh);
@@ -176,17 +156,23 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             } else {
                 (r, st)
             };
-            key += usize::from(r << 9 >= (511 - 2 * (d & 0xFF)) * st);
+            let byte = (d >> 8) & 0xFF;
+            key += usize::from(r << 9 >= (511 - 2 * byte) * st);
             if let Some(k) = keys.get_mut(i) {
                 *k = key as u8;
             }
+        }
+        mu_w.finish();
+        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`).
+        let full = (MU_QMAX as u32) << 8;
+        if max_u > full || max_u * 4 < full {
+            return None;
         }
         // The base as `reencode` sets it: the floor key of the largest scatter plus one, less 31.
         let base = (base_old + top as u32 + 1).saturating_sub(PSI_CODE_MAX);
         let moved = base as i32 - base_old as i32;
         let mut psi_w = CodeWriter::new(psi_out);
-        for i in 0..core::hint::black_box(D) {
-            let key = keys.get(i).copied().unwrap_or(0);
+        for &key in &keys {
             psi_w.put(
                 PSI_BITS,
                 (i32::from(key) - moved).clamp(0, PSI_CODE_MAX as i32) as u32,
