@@ -37,6 +37,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         ctx: &ScatterUnits,
         n0: u32,
         sigma: i32,
+        fine: bool,
         dither: &mut Dither,
     ) -> Option<Self> {
         let n1 = sums.count;
@@ -167,9 +168,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
         psi_w.finish();
         mu_w.finish();
-        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`).
+        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
+        // on the fine grid, as `reencode_fine`).
         let full = (MU_QMAX as u32) << 8;
-        if max_u > full || max_u * 4 < full {
+        let ((a, b), _) = super::grid(fine);
+        if max_u > full || max_u * (a as u32) < full * (b as u32) {
             return None;
         }
         // The base as `reencode` sets it: the floor key of the largest scatter plus one, less 31.
