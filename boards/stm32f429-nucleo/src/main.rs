@@ -20,6 +20,7 @@ use latentbki::local_map::LocalMap;
 use latentbki::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use latentbki::tof::VL53L5CX_8X8;
 use latentbki::{packed_len, EncoderSettings, MapConfig, Mapper, Setup};
+use latentbki_selftest::{SELF_TEST_CODEC, SELF_TEST_MEAN_WEIGHTS};
 use static_cell::ConstStaticCell;
 use stm32f4xx_hal::{i2c::I2c, pac, prelude::*};
 use vl53l5cx::{MultizoneRanger, Vl53l5cx, ZoneFrame, ZONES};
@@ -32,9 +33,14 @@ const CAP: usize = MAP_BUDGET / LocalMap::<D, 1, P>::BYTES_PER_VOXEL;
 type Robot = Mapper<D, CAP, P, 4096, 512>;
 
 /// Robot 1, session 1, a 2 m window around the sensor, 0.1 m voxels, ℓ = 0.5 m, f = 3; int8 features, a
-/// code c standing for c / 127.
-static SETUP: Setup =
-    Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1)).with_int8_features(1.0 / 127.0);
+/// code c standing for c / 127; summaries and mean codes as the QEMU boards ship and measure them
+/// (`latentbki_selftest::SELF_TEST_CODEC`, `SELF_TEST_MEAN_WEIGHTS`: the accuracy rows of boards/measure.sh).
+static SETUP: Setup = Setup {
+    codec: SELF_TEST_CODEC,
+    ..Setup::new(MapConfig::DEFAULT, 2.0, EncoderSettings::new(1, 1))
+}
+.with_int8_features(1.0 / 127.0)
+.with_mean_weights(SELF_TEST_MEAN_WEIGHTS);
 /// ST's VL53L5CX firmware blob (≈ 84 KB, not redistributable): given at build time with `VL53L5CX_FW=path`
 /// (build.rs), else empty.
 static VL53L5CX_FW: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vl53l5cx_fw.bin"));
