@@ -109,6 +109,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     /// cold. The entry itself is left for the caller to reuse or remove.
     pub(super) fn cool(&mut self, h: usize) {
         let fixed = self.cooling() == Cooling::Fixed;
+        let fine = !self.mean_weights().is_ones(); // the weights' grid (`reencode_fine`) for the fixed cooling too
         let Some(hot) = self.hot.get(h) else { return };
         let s = usize::from(hot.slot);
         let Some(slot) = self.slots.get_mut(s) else {
@@ -130,7 +131,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             (Acc::Codes(c), _) if fixed && !older => {
                 slot.codes = slot
                     .codes
-                    .merge_codes_fixed(c, &self.int8_fix, &mut self.dither)
+                    .merge_codes_fixed(c, &self.int8_fix, fine, &mut self.dither)
             }
             (acc, seen) if !acc.is_empty() => {
                 if seen {

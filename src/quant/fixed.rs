@@ -21,11 +21,14 @@
 //! products are built from 16-bit halves.
 //!
 //! A few points into a voxel of many (a scanning LiDAR's usual cooling) take `sparse` (feature
-//! `sparse-cooling`, the boards' build): the same merge in the old codes' units, 32-bit products only.
-//! `bash boards/measure-targets.sh --table`, instructions per point, f = 3, i8 features, scanning LiDAR /
-//! ToF 8×8 / depth frames: thumbv6m 16,651 → 12,031 / 66,958 → 65,516 / 1,869 → 1,859, riscv32imac
-//! 11,946 → 8,703 / 41,750 → 40,832 / 1,549 → 1,549. The minimal build (`default-features = false`) leaves
-//! it out: riscv32imac's has no room for both paths.
+//! `sparse-cooling`, the boards' build): the same merge in the old codes' units, 32-bit products only. The
+//! minimal build (`default-features = false`) leaves it out: riscv32imac's has no room for both paths. Both
+//! keep the map's mean grid (a weighed map's finer one, as the f32 cooling's `reencode_fine`): the coarse
+//! grid had cost the LiDAR's base station 0.0475 RMS ‖Δμ‖/‖μ‖ against 0.0260 with the f32 cooling.
+//! `bash boards/measure-targets.sh --table` (instructions per point, f = 3, i8 features; before → sparse
+//! path → and the fine grid, which re-grids more often), scanning LiDAR: thumbv6m 16,651 → 11,865 →
+//! 12,515, riscv32imac 11,946 → 8,703 → 9,266; depth frames 1,869 → 1,849 and 1,549 → 1,550; the
+//! firmware's stream at the base station 0.0226 → 0.0180 on both (lidar_f3_i8 0.0475 → 0.0260).
 
 use super::{
     psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT, PSI_STEPS_LOG2,
@@ -131,6 +134,18 @@ fn codes_of(m: i32, r_sigma: u32, bits: u32, base: i32, dither: u32) -> (u8, u8)
 }
 }
 
+/// The mean grid's rules, as [`QuantVoxel::reencode`] (`fine` false) and [`QuantVoxel::reencode_fine`]
+/// (true) keep them: the scale stays while max|m|·a ≥ σ·q_max·b, `within` = (a, b) (a quarter of the top
+/// code, or 1/[`super::FINE_KEEP`]); a new scale is max|m|·headroom/q_max, `headroom` in units of 2⁻²¹
+/// (1.25/63 or [`super::FINE_HEADROOM`]/63).
+fn grid(fine: bool) -> ((i32, i32), u32) {
+    if fine {
+        ((5, 4), 34_953)
+    } else {
+        ((4, 1), 41_610)
+    }
+}
+
 /// What one dimension's scatter merge needs from its voxel (see [`QuantVoxel::merge_codes_fixed`]).
 struct ScatterUnits {
     /// Whether the codes hold earlier points.
@@ -224,6 +239,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         &self,
         sums: &CodeSums<D>,
         fix: &Int8Fix,
+        fine: bool,
         dither: &mut Dither,
     ) -> Self {
         let n1 = sums.count;
@@ -253,7 +269,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let ctx = ScatterUnits::new(fix, n0, n);
         #[cfg(feature = "sparse-cooling")]
         if n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
-            if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, dither) {
+            if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, fine, dither) {
                 return merged;
             }
         }
@@ -299,17 +315,18 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // ---- the mean's scale: kept while it fits (as `reencode`), else max|m|·1.25/q_max rounded up in f16.
         let max_abs = max_abs.min(1 << 24) as i32;
         let qmax = MU_QMAX;
+        let (within, headroom) = grid(fine);
         let keep = sigma > 0
             && max_abs <= sigma.saturating_mul(qmax)
-            && max_abs.saturating_mul(4) >= sigma.saturating_mul(qmax);
+            && max_abs.saturating_mul(within.0) >= sigma.saturating_mul(qmax * within.1);
         let (mu_scale, sigma) = if keep {
             (self.mu_scale, sigma)
         } else if max_abs == 0 {
             (f16::ZERO, 0)
         } else {
-            // max·1.25/63 · s in 16-bit pieces (f16 keeps 11 bits): 1.25/63 ≈ 41,610 · 2⁻²¹.
+            // max·headroom/63 · s in 16-bit pieces (f16 keeps 11 bits): headroom/63 · 2²¹.
             let (t, e) = top16(max_abs as u32);
-            let (p, pe) = top16(t * 41_610);
+            let (p, pe) = top16(t * headroom);
             let bits = f32_bits(p * (fix.s.m >> 8), e + pe - MEAN_FRAC - 21 + 8 + fix.s.e);
             let mut s = f16::from_f32(f32::from_bits(bits));
             let mut sig = fix.steps_of(s);

@@ -37,6 +37,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         ctx: &ScatterUnits,
         n0: u32,
         sigma: i32,
+        fine: bool,
         dither: &mut Dither,
     ) -> Option<Self> {
         let n1 = sums.count;
@@ -113,6 +114,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             CodeReader::new(psi_in),
             CodeWriter::new(mu_out),
         );
+        // The Ψ codes written as if the base stays (almost always), the keys kept for when it moves.
+        let mut psi_w = CodeWriter::new(&mut *psi_out);
         let mut keys = [0u8; D];
         let (mut max_u, mut top) = (0u32, 0usize);
         let mut dith = dither.clone();
@@ -161,24 +164,30 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             if let Some(k) = keys.get_mut(i) {
                 *k = key as u8;
             }
+            psi_w.put(PSI_BITS, key.min(PSI_CODE_MAX as usize) as u32);
         }
+        psi_w.finish();
         mu_w.finish();
-        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`).
+        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
+        // on the fine grid, as `reencode_fine`).
         let full = (MU_QMAX as u32) << 8;
-        if max_u > full || max_u * 4 < full {
+        let ((a, b), _) = super::grid(fine);
+        if max_u > full || max_u * (a as u32) < full * (b as u32) {
             return None;
         }
         // The base as `reencode` sets it: the floor key of the largest scatter plus one, less 31.
         let base = (base_old + top as u32 + 1).saturating_sub(PSI_CODE_MAX);
         let moved = base as i32 - base_old as i32;
-        let mut psi_w = CodeWriter::new(psi_out);
-        for &key in &keys {
-            psi_w.put(
-                PSI_BITS,
-                (i32::from(key) - moved).clamp(0, PSI_CODE_MAX as i32) as u32,
-            );
+        if moved != 0 {
+            let mut psi_w = CodeWriter::new(psi_out);
+            for &key in &keys {
+                psi_w.put(
+                    PSI_BITS,
+                    (i32::from(key) - moved).clamp(0, PSI_CODE_MAX as i32) as u32,
+                );
+            }
+            psi_w.finish();
         }
-        psi_w.finish();
         *dither = dith;
         Some(Self {
             count: f32::from_bits(f32_bits(n, 0)),

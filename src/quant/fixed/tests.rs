@@ -96,6 +96,13 @@ fn integer_helpers_match_f32() {
 /// and merges into codes of earlier visits, many voxels.
 #[test]
 fn fixed_cooling_matches_the_f32_path() {
+    // Both grids: `reencode`'s and the weighed map's finer one (`reencode_fine`).
+    for fine in [false, true] {
+        fixed_cooling_matches_the_f32_path_on(fine);
+    }
+}
+
+fn fixed_cooling_matches_the_f32_path_on(fine: bool) {
     let fix = Int8Fix::new(S);
     let mut rng = Rng(0x2468_ACE1);
     let (mut df, mut dx) = (Dither::new(9), Dither::new(9));
@@ -110,17 +117,41 @@ fn fixed_cooling_matches_the_f32_path() {
         };
         let mut old_obs = old_obs;
         old_obs.count = old_n as f32;
-        let old = QuantVoxel::<D, P>::encode(&old_obs, &mut Dither::new(3));
+        let old = if fine {
+            QuantVoxel::<D, P>::EMPTY.reencode_fine(&old_obs, &mut Dither::new(3))
+        } else {
+            QuantVoxel::<D, P>::encode(&old_obs, &mut Dither::new(3))
+        };
         let (n1, shift_by) = (1 + rng.next() % 255, (rng.next() % 21) as i32 - 10);
         let sums = rng.sums(n1, offset + shift_by);
 
         let mut want = old.decode();
         want.merge(&sums.to_obs(S));
-        let float = old.reencode(&want, &mut df).decode();
-        let fixed = old.merge_codes_fixed(&sums, &fix, &mut dx).decode();
+        let float = if fine {
+            old.reencode_fine(&want, &mut df)
+        } else {
+            old.reencode(&want, &mut df)
+        };
+        let float_scale = float.mu_scale;
+        let float = float.decode();
+        let fixed = old.merge_codes_fixed(&sums, &fix, fine, &mut dx);
+        // The same grid: the same scale kept or chosen (or the next f16 up, from the rounding of max|m|).
+        let up = fixed.mu_scale.to_bits().abs_diff(float_scale.to_bits());
+        assert!(
+            up <= 1,
+            "trial {trial} (fine {fine}): scale {} vs {}",
+            fixed.mu_scale,
+            float_scale
+        );
+        let fixed = fixed.decode();
 
         assert_eq!(fixed.count, float.count, "trial {trial}");
-        let step = want.mean.iter().fold(0.0f32, |a, m| a.max(m.abs())) * 1.25 / 63.0;
+        let headroom = if fine {
+            super::super::FINE_HEADROOM
+        } else {
+            1.25
+        };
+        let step = want.mean.iter().fold(0.0f32, |a, m| a.max(m.abs())) * headroom / 63.0;
         for d in 0..D {
             // Each within ~one code step of the exact merge (stochastic rounding lands on a neighbour).
             let e = (fixed.mean[d] - want.mean[d]).abs() / step;
@@ -144,7 +175,7 @@ fn fixed_cooling_matches_the_f32_path() {
         }
     }
     std::println!(
-        "worst mean error {worst_mu:.2} steps, worst scatter ratio off by {worst_psi:.2}"
+        "fine grid {fine}: worst mean error {worst_mu:.2} steps, worst scatter ratio off by {worst_psi:.2}"
     );
 }
 
@@ -162,7 +193,7 @@ fn many_coolings_do_not_drift() {
         let n1 = 1 + rng.next() % 4;
         let sums = rng.sums(n1, 30);
         truth.merge(&sums.to_obs(S));
-        code = code.merge_codes_fixed(&sums, &fix, &mut dither);
+        code = code.merge_codes_fixed(&sums, &fix, false, &mut dither);
         let mut f = float.decode();
         f.merge(&sums.to_obs(S));
         float = float.reencode(&f, &mut dither);
@@ -221,7 +252,7 @@ fn a_lone_first_point_codes_its_value() {
         let (mut sum, runs) = ([0.0f64; D], 200);
         let mut step = 0.0f32;
         for _ in 0..runs {
-            let q = QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(&sums, &fix, &mut dither);
+            let q = QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(&sums, &fix, false, &mut dither);
             step = q.mu_scale.to_f32();
             let back = q.decode();
             assert_eq!(back.count, 1.0, "trial {trial}");
@@ -269,6 +300,7 @@ fn sparse_merges_match_the_exact_merge() {
             &ScatterUnits::new(&fix, n0, n),
             n0,
             sigma,
+            false,
             &mut dither,
         ) else {
             assert_eq!(
@@ -322,7 +354,7 @@ fn sparse_merges_do_not_drift() {
         let n1 = 1 + rng.next() % 2;
         let sums = rng.sums(n1, 10);
         truth.merge(&sums.to_obs(S));
-        code = code.merge_codes_fixed(&sums, &fix, &mut dither);
+        code = code.merge_codes_fixed(&sums, &fix, false, &mut dither);
         let mut f = float.decode();
         f.merge(&sums.to_obs(S));
         float = float.reencode(&f, &mut dither);
