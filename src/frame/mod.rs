@@ -40,3 +40,5 @@ pub const fn wire_len(body_len: usize) -> usize {
 
 #[cfg(test)]
 mod tests;
+#[cfg(all(test, feature = "stored-codes"))]
+mod tests_stored;

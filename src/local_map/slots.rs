@@ -9,7 +9,7 @@ use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use crate::quant::QuantVoxel;
-use crate::sink::{Evicted, EvictionSink};
+use crate::sink::{Evicted, EvictedStored, EvictionSink};
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
     LocalMap<D, CAP, P, H, C>
@@ -42,25 +42,21 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
     pub(super) fn evict_slot<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
-        let Some(&slot) = self.slots.get(s) else {
+        let Some(slot) = self.slots.get(s) else {
             return false;
         };
         let key = unwrap(slot.key, self.centre);
-        let stamp = self.gather_slot(s);
-        if !self.scratch.is_empty() {
-            let evicted = Evicted {
-                key,
-                obs: &self.scratch,
-                residency: slot.residency,
-                time: C::tick(stamp),
-            };
-            if sink.evict(evicted).is_err() {
-                self.counters.refused = self.counters.refused.saturating_add(1);
-                return false;
-            }
-            self.counters.evicted = self.counters.evicted.saturating_add(1);
+        let handed = if sink.wants_stored() {
+            self.hand_stored(s, key, sink)
+        } else {
+            self.hand_decoded(s, key, sink)
+        };
+        if !handed {
+            self.counters.refused = self.counters.refused.saturating_add(1);
+            return false;
         }
-        if let Some(h) = usize::from(slot.hot).checked_sub(1) {
+        let hot = self.slots.get(s).map_or(0, |slot| slot.hot);
+        if let Some(h) = usize::from(hot).checked_sub(1) {
             self.remove_hot(h);
         }
         if let Some((pos, _)) = self.find(key) {
@@ -71,6 +67,61 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         }
         self.len -= 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+        true
+    }
+
+    /// Hand slot `s`'s statistics to the sink, decoded (hot part merged). False if the sink refused.
+    fn hand_decoded<S: EvictionSink<D>>(&mut self, s: usize, key: VoxelKey, sink: &mut S) -> bool {
+        let Some(&slot) = self.slots.get(s) else {
+            return false;
+        };
+        let stamp = self.gather_slot(s);
+        if self.scratch.is_empty() {
+            return true;
+        }
+        let evicted = Evicted {
+            key,
+            obs: &self.scratch,
+            residency: slot.residency,
+            time: C::tick(stamp),
+        };
+        if sink.evict(evicted).is_err() {
+            return false;
+        }
+        self.counters.evicted = self.counters.evicted.saturating_add(1);
+        true
+    }
+
+    /// Hand slot `s`'s codes to the sink as they are (no decode): a hot voxel cools into its codes first
+    /// (its points merge, as when another voxel needs its entry) and leaves the hot tier. False if the
+    /// sink refused (the voxel stays, cooled).
+    fn hand_stored<S: EvictionSink<D>>(&mut self, s: usize, key: VoxelKey, sink: &mut S) -> bool {
+        if let Some(h) = self
+            .slots
+            .get(s)
+            .and_then(|slot| usize::from(slot.hot).checked_sub(1))
+        {
+            self.cool(h);
+            self.remove_hot(h);
+        }
+        let weighed = self.mean_weights.has_shifts();
+        let Some(slot) = self.slots.get(s) else {
+            return false;
+        };
+        if !(slot.codes.count > 0.0) {
+            return true;
+        }
+        let voxel = EvictedStored {
+            key,
+            codes: slot.codes.stored(),
+            residency: slot.residency,
+            time: C::tick(slot.stamp),
+            weighed,
+        };
+        if sink.evict_stored(voxel).is_err() {
+            return false;
+        }
+        self.counters.evicted = self.counters.evicted.saturating_add(1);
         true
     }
 

@@ -19,9 +19,11 @@ use core::num::NonZeroUsize;
 use serde::{Deserialize, Serialize};
 
 mod rice_codes;
+mod stored;
 mod transform;
 pub use rice_codes::encode_rice;
 pub(crate) use rice_codes::{decode_rice_at, encode_rice_at, rice_end};
+pub use stored::write_stored;
 #[cfg(test)]
 pub(super) use transform::hadamard;
 use transform::{decode_band, encode_band, max_or_zero, rotate};
@@ -73,6 +75,20 @@ impl SummaryCodec {
         rice: false,
     };
 
+    /// The map's own codes, verbatim ([`stored`](self::stored)): `mean_bits` 0 marks the mode (no packed
+    /// codec has it), the other fields are not used. Feature `stored-codes`.
+    pub const STORED: Self = Self {
+        mean_bits: 0,
+        ..Self::DEFAULT
+    };
+
+    /// Whether summaries carry the map's own codes ([`Self::STORED`]); always false without
+    /// `stored-codes` (a session asking for them is then refused: `mean_bits` 0).
+    #[inline]
+    pub const fn is_stored(self) -> bool {
+        cfg!(feature = "stored-codes") && self.mean_bits == 0 && !self.is_rice()
+    }
+
     /// Whether the mean bands are Rice-coded ([`Self::rice`]); always false without `rice-codes`.
     #[inline]
     pub const fn is_rice(self) -> bool {
@@ -87,6 +103,9 @@ impl SummaryCodec {
         let blocks = usize::from(self.psi_blocks);
         if dim == 0 || dim > u16::MAX as usize {
             return Err(WireError::BadConfig);
+        }
+        if self.is_stored() {
+            return Ok(());
         }
         if !(2..=8).contains(&self.mean_bits) || blocks == 0 || blocks > dim.min(64) {
             return Err(WireError::BadConfig);
@@ -162,6 +181,9 @@ impl SummaryCodec {
     /// inlined: one copy in flash for its callers on the robot.)
     #[inline(never)]
     pub const fn code_len_for(self, dim: usize, count: u32) -> usize {
+        if self.is_stored() {
+            return stored::len(dim, count);
+        }
         let mean = self.mean_len_for(dim, count);
         if count < 2 {
             mean
@@ -181,7 +203,7 @@ impl SummaryCodec {
 
     /// Bytes of the scatter of a summary of `count` points (none for one point).
     pub const fn scatter_len(self, count: u32) -> usize {
-        if count < 2 {
+        if count < 2 || self.is_stored() {
             0
         } else {
             1 + (self.psi_blocks as usize).div_ceil(2)
@@ -283,6 +305,10 @@ pub fn encode_codes_as<const D: usize>(
     if codec.is_rice() {
         return encode_rice(codec, super::rice::Policy::DEFAULT, stats, count, out);
     }
+    if codec.is_stored() {
+        // Stored codes are the map's: statistics are not encoded into them here (see `stored`).
+        return Err(WireError::BadConfig);
+    }
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
     // μ: the lead band (if any), then the other components, each after its scale byte.
@@ -379,6 +405,9 @@ pub fn decode_codes_as<const D: usize>(
     if codec.is_rice() {
         return decode_rice_at(codec, (n, count), bytes, 0).map(|(obs, _, _)| obs);
     }
+    if codec.is_stored() {
+        return stored::decode(n, count, bytes);
+    }
     for (band, bits) in [
         (0..lead, codec.lead_bits_for(n)),
         (lead..D, codec.rest_bits_for(n)),
@@ -438,6 +467,9 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
             sq += len as f32 * e * e;
         }
         return libm::sqrtf(sq);
+    }
+    if codec.is_stored() {
+        return stored::error_bound(dim, codes);
     }
     let band = |scale_code: Option<&u8>, len: usize, bits: u32| {
         let scale = log_value(scale_code.copied().unwrap_or(0), SCALE_OFFSET);
