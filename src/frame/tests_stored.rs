@@ -179,3 +179,51 @@ impl embedded_io::Write for Out {
         Ok(())
     }
 }
+
+/// A map that forgets, in a session that forgets: stamped summaries carry the codes as of each voxel's last
+/// change (a hot voxel cooled, faded by the clock rule, first), bit for bit what the map's decode gives.
+#[cfg(feature = "forgetting")]
+#[test]
+fn stamped_stored_codes_carry_the_faded_codes_and_their_tick() {
+    use crate::forget::{Fading, Forgetting};
+    type Fmap = LocalMap<D, 64, P, 4, Fading>;
+    let forgetting = Forgetting::new(20.0);
+    let fill = || {
+        let mut m = Box::new(Fmap::EMPTY);
+        m.configure(MapConfig::default(), 50.0).unwrap();
+        m.set_forgetting(forgetting).unwrap();
+        let mut none = |_: Evicted<'_, D>| Err(SinkFull);
+        for i in 0..30u32 {
+            m.set_time(100 + 3 * i);
+            let y: [f32; D] = core::array::from_fn(|d| ((i * 5 + d as u32) as f32 * 0.29).cos());
+            for r in 0..1 + i % 3 {
+                let x = (i % 17) as f32 * 0.5 + r as f32 * 0.01;
+                m.add_point([x, 0.1, 0.1], &y, &mut none).unwrap();
+            }
+        }
+        m
+    };
+    let config = SessionConfig::new(&MapConfig::default(), D, SummaryCodec::STORED, 0)
+        .with_forgetting(forgetting);
+    let mut enc = Enc::new(config, EncoderSettings::new(1, 2)).unwrap();
+    let mut seen = Recorder::default();
+    let mut times = Vec::new();
+    let n = fill().flush(&mut enc).unwrap();
+    assert_eq!(fill().flush(&mut seen).unwrap(), n);
+    let mut twin = fill();
+    twin.flush(&mut |v: Evicted<'_, D>| {
+        times.push(v.time);
+        Ok(())
+    })
+    .unwrap();
+    let mut out = Out(Vec::new());
+    enc.tick(&mut out, 1 << 20, core::iter::empty()).unwrap();
+    let got = summaries(&out.0, SummaryCodec::STORED);
+    assert_eq!(got.len(), n);
+    for (((s, _), (key, _, obs)), time) in got.iter().zip(&seen.0).zip(&times) {
+        assert_eq!(s.key, *key);
+        assert_eq!(&s.obs, obs, "bit for bit");
+        assert_eq!(s.time, Some(*time));
+    }
+    assert!(times.iter().any(|&t| t != times[0]), "stamps differ");
+}

@@ -42,23 +42,36 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
     pub(super) fn evict_slot<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
-        let Some(slot) = self.slots.get(s) else {
+        if sink.wants_stored() {
+            return self.evict_stored(s, sink);
+        }
+        let Some(&slot) = self.slots.get(s) else {
             return false;
         };
         let key = unwrap(slot.key, self.centre);
-        let handed = if sink.wants_stored() {
-            self.hand_stored(s, key, sink)
-        } else {
-            self.hand_decoded(s, key, sink)
-        };
-        if !handed {
-            self.counters.refused = self.counters.refused.saturating_add(1);
-            return false;
+        let stamp = self.gather_slot(s);
+        if !self.scratch.is_empty() {
+            let evicted = Evicted {
+                key,
+                obs: &self.scratch,
+                residency: slot.residency,
+                time: C::tick(stamp),
+            };
+            if sink.evict(evicted).is_err() {
+                self.counters.refused = self.counters.refused.saturating_add(1);
+                return false;
+            }
+            self.counters.evicted = self.counters.evicted.saturating_add(1);
         }
-        let hot = self.slots.get(s).map_or(0, |slot| slot.hot);
-        if let Some(h) = usize::from(hot).checked_sub(1) {
+        if let Some(h) = usize::from(slot.hot).checked_sub(1) {
             self.remove_hot(h);
         }
+        self.free_slot(s, key);
+        true
+    }
+
+    /// Empty slot `s` (holding `key`, cold) and drop it from the index.
+    fn free_slot(&mut self, s: usize, key: VoxelKey) {
         if let Some((pos, _)) = self.find(key) {
             self.index_remove(pos);
         }
@@ -67,35 +80,12 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         }
         self.len -= 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
-        true
     }
 
-    /// Hand slot `s`'s statistics to the sink, decoded (hot part merged). False if the sink refused.
-    fn hand_decoded<S: EvictionSink<D>>(&mut self, s: usize, key: VoxelKey, sink: &mut S) -> bool {
-        let Some(&slot) = self.slots.get(s) else {
-            return false;
-        };
-        let stamp = self.gather_slot(s);
-        if self.scratch.is_empty() {
-            return true;
-        }
-        let evicted = Evicted {
-            key,
-            obs: &self.scratch,
-            residency: slot.residency,
-            time: C::tick(stamp),
-        };
-        if sink.evict(evicted).is_err() {
-            return false;
-        }
-        self.counters.evicted = self.counters.evicted.saturating_add(1);
-        true
-    }
-
-    /// Hand slot `s`'s codes to the sink as they are (no decode): a hot voxel cools into its codes first
-    /// (its points merge, as when another voxel needs its entry) and leaves the hot tier. False if the
-    /// sink refused (the voxel stays, cooled).
-    fn hand_stored<S: EvictionSink<D>>(&mut self, s: usize, key: VoxelKey, sink: &mut S) -> bool {
+    /// [`Self::evict_slot`] to a sink that takes codes ([`EvictionSink::wants_stored`]): the codes go as
+    /// they are (no decode). A hot voxel cools into its codes first (its points merge, as when another
+    /// voxel needs its entry) and leaves the hot tier; on refusal it stays, cooled.
+    fn evict_stored<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
         if let Some(h) = self
             .slots
             .get(s)
@@ -108,20 +98,22 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         let Some(slot) = self.slots.get(s) else {
             return false;
         };
-        if !(slot.codes.count > 0.0) {
-            return true;
+        let key = unwrap(slot.key, self.centre);
+        if slot.codes.count > 0.0 {
+            let voxel = EvictedStored {
+                key,
+                codes: slot.codes.stored(),
+                residency: slot.residency,
+                time: C::tick(slot.stamp),
+                weighed,
+            };
+            if sink.evict_stored(voxel).is_err() {
+                self.counters.refused = self.counters.refused.saturating_add(1);
+                return false;
+            }
+            self.counters.evicted = self.counters.evicted.saturating_add(1);
         }
-        let voxel = EvictedStored {
-            key,
-            codes: slot.codes.stored(),
-            residency: slot.residency,
-            time: C::tick(slot.stamp),
-            weighed,
-        };
-        if sink.evict_stored(voxel).is_err() {
-            return false;
-        }
-        self.counters.evicted = self.counters.evicted.saturating_add(1);
+        self.free_slot(s, key);
         true
     }
 
