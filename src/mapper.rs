@@ -179,6 +179,7 @@ impl<
             return Err(SetupError::Map(crate::config::ConfigError::MeanWeights));
         }
         // Stored codes carry no weights: a weighed mean only its own map can weigh back.
+        #[cfg(feature = "stored-codes")]
         if setup.codec.is_stored() && setup.mean_weights.has_shifts() {
             return Err(SetupError::Link(crate::wire::WireError::BadConfig));
         }

@@ -9,7 +9,9 @@ use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use crate::quant::QuantVoxel;
-use crate::sink::{Evicted, EvictedStored, EvictionSink};
+#[cfg(feature = "stored-codes")]
+use crate::sink::EvictedStored;
+use crate::sink::{Evicted, EvictionSink};
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
     LocalMap<D, CAP, P, H, C>
@@ -42,6 +44,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
     pub(super) fn evict_slot<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
+        #[cfg(feature = "stored-codes")]
         if sink.wants_stored() {
             return self.evict_stored(s, sink);
         }
@@ -66,11 +69,19 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         if let Some(h) = usize::from(slot.hot).checked_sub(1) {
             self.remove_hot(h);
         }
-        self.free_slot(s, key);
+        if let Some((pos, _)) = self.find(key) {
+            self.index_remove(pos);
+        }
+        if let Some(freed) = self.slots.get_mut(s) {
+            *freed = Slot::empty(C::ZERO);
+        }
+        self.len -= 1;
+        self.counters.slots_written = self.counters.slots_written.saturating_add(1);
         true
     }
 
     /// Empty slot `s` (holding `key`, cold) and drop it from the index.
+    #[cfg(feature = "stored-codes")]
     fn free_slot(&mut self, s: usize, key: VoxelKey) {
         if let Some((pos, _)) = self.find(key) {
             self.index_remove(pos);
@@ -85,6 +96,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     /// [`Self::evict_slot`] to a sink that takes codes ([`EvictionSink::wants_stored`]): the codes go as
     /// they are (no decode). A hot voxel cools into its codes first (its points merge, as when another
     /// voxel needs its entry) and leaves the hot tier; on refusal it stays, cooled.
+    #[cfg(feature = "stored-codes")]
     fn evict_stored<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
         if let Some(h) = self
             .slots

@@ -325,7 +325,7 @@ pub fn decode_summary<const D: usize>(
             codec.lead_len_for(class)
         };
         // Stored codes have no log-coded values: nothing is clamped to a top code.
-        let ceiling = if codec.is_stored() {
+        let ceiling = if cfg!(feature = "stored-codes") && codec.is_stored() {
             Ceiling::default()
         } else {
             Ceiling {

@@ -6,8 +6,12 @@ use super::FrameEncoder;
 use crate::key::VoxelKey;
 use crate::local_map::LiveVoxel;
 use crate::obs::ObsStats;
-use crate::sink::{Evicted, EvictedStored, EvictionSink, SinkFull};
-use crate::wire::{encode_codes_as, wire_count, write_stored, SessionConfig};
+#[cfg(feature = "stored-codes")]
+use crate::sink::EvictedStored;
+use crate::sink::{Evicted, EvictionSink, SinkFull};
+#[cfg(feature = "stored-codes")]
+use crate::wire::write_stored;
+use crate::wire::{encode_codes_as, wire_count, SessionConfig};
 
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32; a stamped entry's
 /// weight n as f32 bits, its tick in the 4 bytes after), all little-endian.
@@ -101,6 +105,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// The weight a voxel is sent with, or `None` if the decoder would refuse it (not valid; a count not
     /// whole or out of range, or a stamped weight not in (0, 2²⁴]).
     pub(super) fn weight(&self, voxel: &Evicted<'_, D>) -> Option<Weight> {
+        #[cfg(feature = "stored-codes")]
         if self.config.codec.is_stored() {
             // Stored codes are the map's own: statistics handed as such have none (see `evict_stored`).
             return None;
@@ -192,6 +197,7 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
 
     /// Whether the session carries stored codes ([`crate::wire::SummaryCodec::STORED`]): the map then
     /// hands its voxels' codes as they are ([`Self::evict_stored`]).
+    #[cfg(feature = "stored-codes")]
     #[inline(always)]
     fn wants_stored(&self) -> bool {
         self.config.codec.is_stored()
@@ -199,6 +205,7 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
 
     /// Copy a voxel's codes into the queue now (a session of stored codes), or refuse when it is full. In
     /// a session of other codes they are decoded and quantized as [`Self::evict`] does.
+    #[cfg(feature = "stored-codes")]
     fn evict_stored(&mut self, voxel: EvictedStored<'_>) -> Result<(), SinkFull> {
         if self.wants_stored() {
             return self.queue_stored(voxel);
@@ -217,6 +224,7 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
     }
 }
 
+#[cfg(feature = "stored-codes")]
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// The weight a voxel's stored codes are sent with: as [`Self::weight`], from the codes' exact n.
     fn stored_weight(&self, voxel: &EvictedStored<'_>) -> Option<Weight> {

@@ -19,10 +19,12 @@ use core::num::NonZeroUsize;
 use serde::{Deserialize, Serialize};
 
 mod rice_codes;
+#[cfg(feature = "stored-codes")]
 mod stored;
 mod transform;
 pub use rice_codes::encode_rice;
 pub(crate) use rice_codes::{decode_rice_at, encode_rice_at, rice_end};
+#[cfg(feature = "stored-codes")]
 pub use stored::write_stored;
 #[cfg(test)]
 pub(super) use transform::hadamard;
@@ -104,6 +106,7 @@ impl SummaryCodec {
         if dim == 0 || dim > u16::MAX as usize {
             return Err(WireError::BadConfig);
         }
+        #[cfg(feature = "stored-codes")]
         if self.is_stored() {
             return Ok(());
         }
@@ -181,6 +184,7 @@ impl SummaryCodec {
     /// inlined: one copy in flash for its callers on the robot.)
     #[inline(never)]
     pub const fn code_len_for(self, dim: usize, count: u32) -> usize {
+        #[cfg(feature = "stored-codes")]
         if self.is_stored() {
             return stored::len(dim, count);
         }
@@ -203,7 +207,7 @@ impl SummaryCodec {
 
     /// Bytes of the scatter of a summary of `count` points (none for one point).
     pub const fn scatter_len(self, count: u32) -> usize {
-        if count < 2 || self.is_stored() {
+        if count < 2 || (cfg!(feature = "stored-codes") && self.is_stored()) {
             0
         } else {
             1 + (self.psi_blocks as usize).div_ceil(2)
@@ -308,6 +312,7 @@ pub fn encode_codes_as<const D: usize>(
     if codec.is_rice() {
         return encode_rice(codec, super::rice::Policy::DEFAULT, stats, count, out);
     }
+    #[cfg(feature = "stored-codes")]
     if codec.is_stored() {
         // Stored codes are the map's: statistics are not encoded into them here (see `stored`).
         return Err(WireError::BadConfig);
@@ -408,6 +413,7 @@ pub fn decode_codes_as<const D: usize>(
     if codec.is_rice() {
         return decode_rice_at(codec, (n, count), bytes, 0).map(|(obs, _, _)| obs);
     }
+    #[cfg(feature = "stored-codes")]
     if codec.is_stored() {
         return stored::decode(n, count, bytes);
     }
@@ -471,6 +477,7 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
         }
         return libm::sqrtf(sq);
     }
+    #[cfg(feature = "stored-codes")]
     if codec.is_stored() {
         return stored::error_bound(dim, codes);
     }
