@@ -42,12 +42,8 @@ pub const SELF_TEST_MAP_BUDGET: usize = 144 * 1024;
 /// voxel.
 pub const SELF_TEST_CAPACITY: usize =
     SELF_TEST_MAP_BUDGET / LocalMap::<64, 1, { latentbki::quant::packed_len(64) }>::BYTES_PER_VOXEL;
-/// Bytes of the encoder's queue of evicted voxels. 8 KiB since the boards stream stored codes (≈ 100 B a
-/// summary, 120 B a queue entry, where 6-bit packed codes took 74): with 4 KiB the ToF scenarios' bursts of
-/// evictions filled it and the map refused 2.6 % of their points more (7,243 integrated of 9,216 against
-/// 7,434); with 8 KiB they integrate as many as before (the host twin: 2,125 / 7,287 / 7,295 voxels, as
-/// before).
-pub const SELF_TEST_QUEUE_BYTES: usize = 8192;
+/// Bytes of the encoder's queue of evicted voxels.
+pub const SELF_TEST_QUEUE_BYTES: usize = 4096;
 /// Of the queue budget: bytes that keep frames until the loopback acknowledges them.
 pub const SELF_TEST_RESEND_BYTES: usize = 2048;
 /// Largest frame on the wire.
