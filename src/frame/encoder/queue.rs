@@ -210,6 +210,17 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
         if self.wants_stored() {
             return self.queue_stored(voxel);
         }
+        self.evict_decoded(voxel)
+    }
+}
+
+#[cfg(feature = "stored-codes")]
+impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    /// Codes handed to an encoder of another codec: decoded, then taken as statistics. Out of line: its
+    /// 516-byte statistics would otherwise sit in the frame of every eviction (the map's eviction inlines
+    /// the sink), raising the stack's high-water mark where this never runs.
+    #[inline(never)]
+    fn evict_decoded(&mut self, voxel: EvictedStored<'_>) -> Result<(), SinkFull> {
         let mut obs = ObsStats::EMPTY;
         if voxel.decode_into(&mut obs).is_none() {
             self.stats.invalid = self.stats.invalid.saturating_add(1);
