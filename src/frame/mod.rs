@@ -40,5 +40,3 @@ pub const fn wire_len(body_len: usize) -> usize {
 
 #[cfg(test)]
 mod tests;
-#[cfg(all(test, feature = "stored-codes"))]
-mod tests_stored;

@@ -19,13 +19,13 @@ use core::num::NonZeroUsize;
 use serde::{Deserialize, Serialize};
 
 mod rice_codes;
-#[cfg(feature = "stored-codes")]
 mod stored;
 mod transform;
 pub use rice_codes::encode_rice;
 pub(crate) use rice_codes::{decode_rice_at, encode_rice_at, rice_end};
 #[cfg(feature = "stored-codes")]
 pub use stored::write_stored;
+pub use stored::STORED_MARK;
 #[cfg(test)]
 pub(super) use transform::hadamard;
 use transform::{decode_band, encode_band, max_or_zero, rotate};
@@ -76,20 +76,6 @@ impl SummaryCodec {
         #[cfg(feature = "rice-codes")]
         rice: false,
     };
-
-    /// The map's own codes, verbatim ([`stored`](self::stored)): `mean_bits` [`STORED_MARK`] marks the
-    /// mode (no packed codec has it), the other fields are not used. Feature `stored-codes`.
-    pub const STORED: Self = Self {
-        mean_bits: STORED_MARK,
-        ..Self::DEFAULT
-    };
-
-    /// Whether summaries carry the map's own codes ([`Self::STORED`]); always false without
-    /// `stored-codes` (a session asking for them is then refused: its `mean_bits` are out of range).
-    #[inline]
-    pub const fn is_stored(self) -> bool {
-        cfg!(feature = "stored-codes") && self.mean_bits == STORED_MARK && !self.is_rice()
-    }
 
     /// Whether the mean bands are Rice-coded ([`Self::rice`]); always false without `rice-codes`.
     #[inline]
@@ -229,9 +215,6 @@ impl SummaryCodec {
         PACKED_HEAD_MAX + self.code_len(dim)
     }
 }
-
-/// [`SummaryCodec::mean_bits`] of [`SummaryCodec::STORED`]: 255, no packed width.
-pub const STORED_MARK: u8 = u8::MAX;
 
 /// Most bytes of a packed summary's head: 5-byte key deltas and residency field, a 4-byte count.
 pub const PACKED_HEAD_MAX: usize = 3 * 5 + 5 + 4;

@@ -11,12 +11,36 @@
 //! scale and the mean codes only. The layout constants (code widths, scatter steps per octave) are part of
 //! the protocol version (`wire_spec.md`).
 
+use super::SummaryCodec;
+#[cfg(feature = "stored-codes")]
 use super::WireError;
+#[cfg(feature = "stored-codes")]
 use crate::obs::ObsStats;
+#[cfg(feature = "stored-codes")]
 use crate::quant::{mean_codes_len, scatter_codes_len, StoredCodes};
+
+/// [`SummaryCodec::mean_bits`] of [`SummaryCodec::STORED`]: 255, no packed width.
+pub const STORED_MARK: u8 = u8::MAX;
+
+impl SummaryCodec {
+    /// The map's own codes, verbatim (`wire::codec`'s stored codes, `wire_spec.md`): `mean_bits` [`STORED_MARK`] marks the
+    /// mode (no packed codec has it), the other fields are not used. Feature `stored-codes`.
+    pub const STORED: Self = Self {
+        mean_bits: STORED_MARK,
+        ..Self::DEFAULT
+    };
+
+    /// Whether summaries carry the map's own codes ([`Self::STORED`]); always false without
+    /// `stored-codes` (a session asking for them is then refused: its `mean_bits` are out of range).
+    #[inline]
+    pub const fn is_stored(self) -> bool {
+        cfg!(feature = "stored-codes") && self.mean_bits == STORED_MARK && !self.is_rice()
+    }
+}
 
 /// Bytes of stored codes of a D-dimensional summary of `count` points (the scale and the mean codes; with
 /// two points or more, the scatter base and codes too).
+#[cfg(feature = "stored-codes")]
 pub(super) const fn len(dim: usize, count: u32) -> usize {
     let mean = 2 + mean_codes_len(dim);
     if count < 2 {
@@ -28,6 +52,7 @@ pub(super) const fn len(dim: usize, count: u32) -> usize {
 
 /// Write a D-dimensional voxel's codes as a summary of `class` points ([`len`] bytes) into `out`. One
 /// point has no scatter (its codes are all zero on base 0), so none is sent.
+#[cfg(feature = "stored-codes")]
 pub fn write_stored<const D: usize>(
     codes: &StoredCodes<'_>,
     class: u32,
@@ -50,6 +75,7 @@ pub fn write_stored<const D: usize>(
 }
 
 /// Decode stored codes sized for a summary of `n` points into statistics of weight `count`.
+#[cfg(feature = "stored-codes")]
 pub(super) fn decode<const D: usize>(
     n: u32,
     count: f32,
@@ -79,6 +105,7 @@ pub(super) fn decode<const D: usize>(
 
 /// Largest error of a decoded mean: stochastic rounding lands on one of a value's two neighbouring codes,
 /// so within one step (the scale) per component.
+#[cfg(feature = "stored-codes")]
 pub(super) fn error_bound(dim: usize, codes: &[u8]) -> f32 {
     let scale = match codes {
         [a, b, ..] => half::f16::from_bits(u16::from_le_bytes([*a, *b])).to_f32(),
@@ -86,3 +113,6 @@ pub(super) fn error_bound(dim: usize, codes: &[u8]) -> f32 {
     };
     libm::sqrtf(dim as f32) * scale
 }
+
+#[cfg(all(test, feature = "stored-codes"))]
+mod tests;

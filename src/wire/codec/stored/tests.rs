@@ -2,8 +2,8 @@
 //! statistics the map's own decode gives), a one-point summary sends no scatter, and hostile bytes are
 //! refused, never a panic.
 
-use super::*;
 use crate::config::MapConfig;
+use crate::frame::{live, EncoderSettings, Feed, FrameDecoder, FrameEncoder};
 use crate::key::VoxelKey;
 use crate::local_map::LocalMap;
 use crate::obs::ObsStats;
