@@ -406,3 +406,49 @@ fn a_stranded_hot_voxel_refuses_points() {
     assert_eq!(m.rejections().outside_window, outside + 3);
     assert_eq!(sink.points, 6.0);
 }
+
+/// A window move keeps exactly the voxels within its radius of the new centre — after steps, long jumps
+/// (the offset test on wrapped keys) and a jump beyond 2³⁰ voxels (the full keys) — and a voxel a refusing
+/// sink did not take stays, to leave at the next move; nothing is lost on the way.
+#[test]
+fn a_move_keeps_exactly_the_voxels_within_the_radius() {
+    let radius = 1.0f32; // 10 voxels of 0.1 m
+    let mut map = boxed::<2048>(radius);
+    let mut sink = Collect::default();
+    let r2 = 10i64 * 10;
+    let mut added = 0usize;
+    // Metres: steps, a long jump, back, and a jump of 1.5 · 10⁸ m (1.5 · 10⁹ voxels, beyond 2³⁰).
+    let path = [0.05, 0.3, 0.45, 7.0, 7.2, -3.0, 1.5e8, 1.5e8 + 0.35, 0.0];
+    for (i, &x) in path.iter().enumerate() {
+        // Refuse every eviction of the fourth move: its leavers stay (stranded) until the fifth.
+        sink.refuse = i == 3;
+        let before = sink.voxels.len();
+        let held_before = map.len();
+        let evicted = map.move_window([x, 0.0, 0.0], &mut sink);
+        assert_eq!(evicted, sink.voxels.len() - before, "move {i}");
+        assert_eq!(map.len(), held_before - evicted, "move {i}");
+        let c = map.centre();
+        if i != 3 {
+            // Everything held is inside; everything evicted was outside.
+            assert!(
+                map.iter().all(|v| v.key.distance_squared(c) <= r2),
+                "move {i}: a held voxel outside the window"
+            );
+            assert!(
+                sink.voxels[before..]
+                    .iter()
+                    .all(|(k, _, _)| k.distance_squared(c) > r2),
+                "move {i}: an evicted voxel was inside"
+            );
+        } else {
+            assert_eq!(evicted, 0, "a refusing sink takes nothing");
+        }
+        // Fill the window around the new centre (its points in the sensor frame at the centre).
+        let (p, f) = frame(i as u32 + 7, 0.0, 300);
+        let pose = Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), Default::default());
+        added += map.add_points(&pose, &p, &f, &mut sink);
+    }
+    // Every point is either held or was evicted, once.
+    let held: f64 = map.iter().map(|v| f64::from(v.obs.count)).sum();
+    assert_eq!(held + sink.points, added as f64);
+}

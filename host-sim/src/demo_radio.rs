@@ -304,10 +304,15 @@ impl DemoRadio {
         );
         let c = self.config.codec;
         // The optional `latentbki` features the robot's setup uses, against the boards' build.
-        let used: Vec<&str> = [("rice-codes", c.is_rice()), ("mean-weights", robot.weighed)]
-            .into_iter()
-            .filter_map(|(f, on)| on.then_some(f))
-            .collect();
+        // The fixed-point cooling's sparse path is linked wherever the crate's defaults are (the robot's too).
+        let used: Vec<&str> = [
+            ("rice-codes", c.is_rice()),
+            ("mean-weights", robot.weighed),
+            ("sparse-cooling", latentbki::quant::Cooling::SPARSE),
+        ]
+        .into_iter()
+        .filter_map(|(f, on)| on.then_some(f))
+        .collect();
         let boards = latentbki_selftest::BOARD_FEATURES;
         // The boards also link `stored-codes` (their self-test's codec), which this robot does not use.
         let theirs: Vec<&str> = boards

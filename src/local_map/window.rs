@@ -11,6 +11,20 @@ pub(super) fn wrap(k: VoxelKey) -> [i16; 3] {
     [k.x as i16, k.y as i16, k.z as i16]
 }
 
+/// Whether `k` is within `radius` voxels of `centre` ([`VoxelKey::distance_squared`] ≤ r²) in 32 bits: an
+/// axis farther than r is outside at once; otherwise every |d| ≤ r ≤ [`super::MAX_WINDOW_VOXELS`] < 2¹⁵, so
+/// the d² sum stays below 3·2³⁰.
+#[inline(always)]
+fn within(k: VoxelKey, centre: VoxelKey, radius: i32) -> bool {
+    let r = radius.unsigned_abs();
+    let (dx, dy, dz) = (
+        k.x.abs_diff(centre.x),
+        k.y.abs_diff(centre.y),
+        k.z.abs_diff(centre.z),
+    );
+    dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r
+}
+
 pub(super) fn unwrap(w: [i16; 3], centre: VoxelKey) -> VoxelKey {
     let d = |w: i16, c: i32| c + i32::from(w.wrapping_sub(c as i16));
     VoxelKey::new(d(w[0], centre.x), d(w[1], centre.y), d(w[2], centre.z))
@@ -44,18 +58,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     #[inline]
     #[cfg_attr(all(target_arch = "arm", target_abi = "eabihf"), allow(dead_code))]
     pub(super) fn in_window_32(&self, k: VoxelKey) -> bool {
-        let r = self.radius.unsigned_abs();
-        let (dx, dy, dz) = (
-            k.x.abs_diff(self.centre.x),
-            k.y.abs_diff(self.centre.y),
-            k.z.abs_diff(self.centre.z),
-        );
-        dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r
+        within(k, self.centre, self.radius)
     }
 
     /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number
     /// evicted. Refused evictions stay (counted); if one of them would fall out of the key wrap range the
     /// centre does not move this time.
+    // Out of line on Arm: inlined into a firmware's loop, its scan kept its values on the stack there
+    // (≈ 55 instructions a slot on the M4F). Inlined on riscv32imac, whose minimal build has no flash for
+    // the call's copy (+ 580 B).
+    #[cfg_attr(target_arch = "arm", inline(never))]
     pub fn move_window<S: EvictionSink<D>>(&mut self, position: [f32; 3], sink: &mut S) -> usize {
         let Ok(new_centre) = VoxelKey::from_position(position, self.lut.inv_voxel_size()) else {
             return 0;
@@ -66,21 +78,41 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // eviction: nothing can be outside. (A 64-point ToF frame would otherwise read every key.)
             return 0;
         }
-        let r = i64::from(self.radius);
-        let mut evicted = 0;
-        let mut keep_centre = false;
-        let mut stranded = false;
+        // A slot's offset from the new centre straight from its wrapped key: (w − c₀) as i16 + (c₀ − c₁) per
+        // axis; the full key is unwrapped only for a voxel that leaves (`leave`, out of line, so the scan
+        // keeps its few values in registers). A move reads every key — an 8×8 ToF moves every 64 points —
+        // and unwrapping each key with the 64-bit distance cost ≈ 55 instructions a slot on the M4F. Every
+        // held key is within 2¹⁵ of the old centre, so an axis moved by 2¹⁶ or more leaves all of them
+        // more than 2¹⁵ > r away: the offset is clamped there, and i32 never overflows.
+        let offset = |o: i32, n: i32| {
+            let off = (i64::from(o) - i64::from(n)).clamp(-(1 << 16), 1 << 16) as i32;
+            (o as i16, off)
+        };
+        let [(cx, ox), (cy, oy), (cz, oz)] = [
+            offset(old_centre.x, new_centre.x),
+            offset(old_centre.y, new_centre.y),
+            offset(old_centre.z, new_centre.z),
+        ];
+        let r = self.radius.unsigned_abs();
+        let (mut evicted, mut stranded, mut keep_centre) = (0, false, false);
         for s in 0..CAP {
-            if self.slots[s].flags & OCCUPIED == 0 {
+            let Some(slot) = self.slots.get(s) else {
+                break;
+            };
+            if slot.flags & OCCUPIED == 0 {
                 continue;
             }
-            let key = unwrap(self.slots[s].key, old_centre);
-            if key.distance_squared(new_centre) > r * r {
-                if self.evict_slot(s, sink) {
-                    evicted += 1;
-                } else {
+            let w = slot.key;
+            let d = |w: i16, c: i16, off: i32| (i32::from(w.wrapping_sub(c)) + off).unsigned_abs();
+            let (dx, dy, dz) = (d(w[0], cx, ox), d(w[1], cy, oy), d(w[2], cz, oz));
+            if dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r {
+                continue;
+            }
+            match self.leave(s, old_centre, new_centre, stranded, sink) {
+                Ok(()) => evicted += 1,
+                Err(wrap_unsafe) => {
                     stranded = true;
-                    keep_centre |= !Self::wrap_safe(key, new_centre);
+                    keep_centre |= wrap_unsafe;
                 }
             }
         }
@@ -91,6 +123,31 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         }
         self.stranded = stranded;
         evicted
+    }
+
+    /// Slot `s` left the window moving from `old_centre` to `new_centre`: evict it, unless the sink has
+    /// already refused one in this move (`refused`: it refuses the rest too, nothing drains it in between,
+    /// so the voxel stays without being gathered for nothing — on a link-bound 8×8 ToF run a move
+    /// re-offered every voxel left outside, each decoded first: 5,148 refusals). `Err` when it stays, with
+    /// whether its key would fall out of the wrap range of the new centre.
+    #[cfg_attr(target_arch = "arm", cold, inline(never))]
+    #[cfg_attr(not(target_arch = "arm"), inline(always))]
+    fn leave<S: EvictionSink<D>>(
+        &mut self,
+        s: usize,
+        old_centre: VoxelKey,
+        new_centre: VoxelKey,
+        refused: bool,
+        sink: &mut S,
+    ) -> Result<(), bool> {
+        if !refused && self.evict_slot(s, sink) {
+            return Ok(());
+        }
+        let key = self
+            .slots
+            .get(s)
+            .map_or(new_centre, |slot| unwrap(slot.key, old_centre));
+        Err(!Self::wrap_safe(key, new_centre))
     }
 }
 

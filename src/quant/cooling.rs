@@ -24,6 +24,10 @@ impl Cooling {
         Self::Fixed
     };
 
+    /// Whether the fixed-point cooling has its path for a few points into a voxel of many (feature
+    /// `sparse-cooling`; without it those merges take the general integer merge, to the same codes' meaning).
+    pub const SPARSE: bool = cfg!(feature = "sparse-cooling");
+
     /// Whether this build has the method's code: a bare-metal build links only [`Self::NATIVE`] (flash),
     /// a hosted one both.
     pub const fn is_built(self) -> bool {

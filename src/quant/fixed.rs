@@ -19,6 +19,13 @@
 //! (≈ 150 per dimension), so it keeps the f32 cooling (1,015). The
 //! per-dimension helpers are kept out of line on riscv32imac (flash: it stays under 64 KiB); on v6-M the 64-bit
 //! products are built from 16-bit halves.
+//!
+//! A few points into a voxel of many (a scanning LiDAR's usual cooling) take `sparse` (feature
+//! `sparse-cooling`, the boards' build): the same merge in the old codes' units, 32-bit products only.
+//! `bash boards/measure-targets.sh --table`, instructions per point, f = 3, i8 features, scanning LiDAR /
+//! ToF 8×8 / depth frames: thumbv6m 16,651 → 12,031 / 66,958 → 65,516 / 1,869 → 1,859, riscv32imac
+//! 11,946 → 8,703 / 41,750 → 40,832 / 1,549 → 1,549. The minimal build (`default-features = false`) leaves
+//! it out: riscv32imac's has no room for both paths.
 
 use super::{
     psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT, PSI_STEPS_LOG2,
@@ -41,6 +48,8 @@ macro_rules! per_dim_step {
 }
 
 mod bits;
+#[cfg(feature = "sparse-cooling")]
+mod sparse;
 use bits::*;
 
 /// Fraction bits of a mean in code steps (|m| ≤ 160 steps → < 2²².)
@@ -134,6 +143,18 @@ struct ScatterUnits {
 }
 
 impl ScatterUnits {
+    /// The units of a merge of `n` points, `n0` of them in the old codes: g chosen so that n·127²·1.25 < 2³¹.
+    fn new(fix: &Int8Fix, n0: u32, n: u32) -> Self {
+        let g = (32 - lz(n) as i32) - 16;
+        Self {
+            old: n0 > 0,
+            old_shift: fix.inv_s2.e - 129 - g, // minifloat 2^(E−129)·(4+f) → units, with 1/s²
+            inv_s2: fix.inv_s2.m,
+            s2: fix.s2,
+            g,
+        }
+    }
+
     /// The old scatter of minifloat key `k` (code plus base) in units: exponent k / 2^L, mantissa
     /// 1 + (k mod 2^L) / 2^L, L = [`PSI_STEPS_LOG2`].
     fn old_units(&self, k: u32) -> u32 {
@@ -229,14 +250,13 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // pattern of its value (what the minifloat codes are cut from). One pass: the scatter needs only its
         // own dimension's means (no array of them).
         let rn = recip(n);
-        let g = (32 - lz(n) as i32) - 16;
-        let ctx = ScatterUnits {
-            old: n0 > 0,
-            old_shift: fix.inv_s2.e - 129 - g, // minifloat 2^(E−129)·(4+f) → units, with 1/s²
-            inv_s2: fix.inv_s2.m,
-            s2: fix.s2,
-            g,
-        };
+        let ctx = ScatterUnits::new(fix, n0, n);
+        #[cfg(feature = "sparse-cooling")]
+        if n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
+            if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, dither) {
+                return merged;
+            }
+        }
         // The old scatters in units, one per Ψ code (32) instead of one per dimension (64): a voxel's codes
         // share their base, so the code alone picks the value.
         let base_old = u32::from(self.psi_base);

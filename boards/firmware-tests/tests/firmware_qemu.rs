@@ -209,6 +209,13 @@ fn streams_the_map_the_host_twin_computes(board: &Board) {
         );
     }
 
+    // Kept next to the ELF: the stream this very build printed, equal to the twin's. The link-time no-panic
+    // proof (`boards/measure.sh --panic-never`) compares its build's stream with it instead of running
+    // this build in QEMU a second time (minutes of soft float on thumbv6m).
+    let mut kept = elf.clone().into_os_string();
+    kept.push(".twin.uart");
+    std::fs::write(&kept, &uart).expect("keep the twin-checked UART stream");
+
     // The same global maps, decoded.
     let (fw_maps, frames, finals) = decode(&uart);
     let (twin_maps, _, _) = decode(&twin.bytes);

@@ -143,6 +143,11 @@ where
         return exit_code::FAILED;
     };
     for (s, scenario) in SELF_TEST.iter().enumerate() {
+        // `ONLY_SCENARIO=N` at build time runs scenario N alone (a profile of one sensor pattern:
+        // boards/profile-scenario.sh); unset, every scenario runs.
+        if option_env!("ONLY_SCENARIO").is_some_and(|only| only != crate::scenario_name(s)) {
+            continue;
+        }
         if let Err(code) = run_scenario(
             s,
             scenario,
@@ -169,6 +174,12 @@ where
     );
     report!("done");
     exit_code::SUCCESS
+}
+
+/// Scenario `s`'s number as `ONLY_SCENARIO` names it.
+fn scenario_name(s: usize) -> &'static str {
+    const NAMES: [&str; 10] = ["0", "1", "2", "3", "4", "5", "6", "7", "8", "9"];
+    NAMES.get(s).copied().unwrap_or("")
 }
 
 /// One scenario of the self-test: the map and the encoder configured in place, the run, a report.

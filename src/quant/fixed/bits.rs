@@ -223,3 +223,110 @@ pub(super) fn count_of(bits: u32) -> u32 {
     let p = Parts::of_bits(bits);
     shift(p.m, p.e)
 }
+
+#[cfg(feature = "sparse-cooling")]
+/// Bits of `v` (0 for 0): the position above its highest set bit.
+#[inline(always)]
+pub(super) fn bit_len(v: u32) -> u32 {
+    32 - lz(v)
+}
+
+#[cfg(feature = "sparse-cooling")]
+/// `x · w / 2¹⁶` for a 16-bit `w`, floored, in 32-bit products (no 64-bit one on v6-M).
+#[inline(always)]
+pub(super) fn mul_q16(x: u32, w: u32) -> u32 {
+    (x >> 16)
+        .wrapping_mul(w)
+        .wrapping_add((x & 0xFFFF).wrapping_mul(w) >> 16)
+}
+
+#[cfg(feature = "sparse-cooling")]
+/// `v · 2^s`: saturated to `u32::MAX` when shifting left, truncated when shifting right.
+#[inline(always)]
+pub(super) fn shl_sat(v: u32, s: i32) -> u32 {
+    if s >= 0 {
+        let s = s as u32;
+        if s > 31 || v > u32::MAX >> s {
+            u32::MAX
+        } else {
+            v << s
+        }
+    } else {
+        v >> (s.unsigned_abs()).min(31)
+    }
+}
+
+#[cfg(feature = "sparse-cooling")]
+/// Packed codes read one after another ([`super::super::pack`]'s layout is one little-endian bit stream per
+/// section): one byte load per 8 bits, no per-code address arithmetic.
+pub(super) struct CodeReader<'a> {
+    data: core::slice::Iter<'a, u8>,
+    acc: u32,
+    bits: u32,
+}
+
+#[cfg(feature = "sparse-cooling")]
+impl<'a> CodeReader<'a> {
+    pub(super) fn new(data: &'a [u8]) -> Self {
+        Self {
+            data: data.iter(),
+            acc: 0,
+            bits: 0,
+        }
+    }
+
+    /// The next `width`-bit code (`width` ≤ 8; 0 past the end).
+    #[inline(always)]
+    pub(super) fn next(&mut self, width: u32) -> u32 {
+        if self.bits < width {
+            self.acc |= u32::from(self.data.next().copied().unwrap_or(0)) << self.bits;
+            self.bits += 8;
+        }
+        let c = self.acc & ((1 << width) - 1);
+        self.acc >>= width;
+        self.bits -= width;
+        c
+    }
+}
+
+#[cfg(feature = "sparse-cooling")]
+/// Codes written one after another into a section, [`CodeReader`]'s inverse.
+pub(super) struct CodeWriter<'a> {
+    data: core::slice::IterMut<'a, u8>,
+    acc: u32,
+    bits: u32,
+}
+
+#[cfg(feature = "sparse-cooling")]
+impl<'a> CodeWriter<'a> {
+    pub(super) fn new(data: &'a mut [u8]) -> Self {
+        Self {
+            data: data.iter_mut(),
+            acc: 0,
+            bits: 0,
+        }
+    }
+
+    /// Append a `width`-bit code (`width` ≤ 8, `code` < 2^width).
+    #[inline(always)]
+    pub(super) fn put(&mut self, width: u32, code: u32) {
+        self.acc |= code << self.bits;
+        self.bits += width;
+        if self.bits >= 8 {
+            if let Some(b) = self.data.next() {
+                *b = self.acc as u8;
+            }
+            self.acc >>= 8;
+            self.bits -= 8;
+        }
+    }
+
+    /// Write the last partial byte.
+    pub(super) fn finish(mut self) {
+        if self.bits > 0 {
+            if let Some(b) = self.data.next() {
+                *b = self.acc as u8;
+            }
+        }
+    }
+}

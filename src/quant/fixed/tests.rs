@@ -1,3 +1,5 @@
+#[cfg(feature = "sparse-cooling")]
+use super::sparse::SPARSE_MAX_NEW;
 use super::*;
 use crate::obs::ObsStats;
 
@@ -237,4 +239,121 @@ fn a_lone_first_point_codes_its_value() {
             assert!(bias < 0.2, "trial {trial} mean[{d}]: bias {bias} steps");
         }
     }
+}
+
+/// The sparse path alone (a few points into a voxel of many, the scanning LiDAR's cooling): taken for most
+/// such merges, and within one code step of the exact merge, mean and scatter; its codes decode as the
+/// f32 path's do (same scale kept, same count).
+#[cfg(feature = "sparse-cooling")]
+#[test]
+fn sparse_merges_match_the_exact_merge() {
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(0x5A5A_0F0F);
+    let mut dither = Dither::new(21);
+    let (mut taken, trials) = (0, 3000);
+    let (mut worst_mu, mut worst_psi) = (0.0f32, 0.0f32);
+    for trial in 0..trials {
+        let n0 = [2, 5, 16, 40, 255, 3000, 100_000][trial % 7];
+        let offset = (rng.next() % 120) as i32 - 60;
+        let mut old_obs = rng.sums(n0.min(255), offset).to_obs(S);
+        old_obs.count = n0 as f32;
+        let old = QuantVoxel::<D, P>::encode(&old_obs, &mut Dither::new(trial as u32 + 1));
+        let n1 = 1 + rng.next() % SPARSE_MAX_NEW;
+        let shift_by = (rng.next() % 11) as i32 - 5;
+        let sums = rng.sums(n1, offset + shift_by);
+        let n = n0 + n1;
+        let sigma = fix.steps_of(old.mu_scale);
+        let before = dither.clone().next();
+        let Some(got) = old.merge_sparse(
+            &sums,
+            &ScatterUnits::new(&fix, n0, n),
+            n0,
+            sigma,
+            &mut dither,
+        ) else {
+            assert_eq!(
+                dither.clone().next(),
+                before,
+                "a refused merge used the dither"
+            );
+            continue;
+        };
+        taken += 1;
+        assert_eq!(got.mu_scale, old.mu_scale, "trial {trial}");
+        let mut want = old.decode();
+        want.merge(&sums.to_obs(S));
+        let back = got.decode();
+        assert_eq!(back.count, want.count, "trial {trial}");
+        let step = old.mu_scale.to_f32();
+        let top = want.scatter.iter().fold(0.0f32, |a, &b| a.max(b));
+        for d in 0..D {
+            // Dithered: one of the two codes around the exact value.
+            let e = (back.mean[d] - want.mean[d]).abs() / step;
+            worst_mu = worst_mu.max(e);
+            assert!(e < 1.0 + 1e-3, "trial {trial} mean[{d}]: {e} steps");
+            // Scatters above the codes' floor (the base) within one key step (25 % at most).
+            if want.scatter[d] > top / 128.0 {
+                let r = back.scatter[d] / want.scatter[d];
+                worst_psi = worst_psi.max((r - 1.0).abs());
+                assert!(r > 1.0 / 1.2501 && r < 1.2501, "trial {trial} scatter[{d}]: {r} n1 {n1} want {} got {} old {} top {top} oldmean {} step {step} sum {} sq {}", want.scatter[d], back.scatter[d], old.decode().scatter[d], old.decode().mean[d], sums.sum(d), sums.square(d));
+            }
+        }
+    }
+    std::println!(
+        "sparse path: {taken} of {trials} merges, worst mean error {worst_mu:.3} steps, scatter off by {worst_psi:.3}"
+    );
+    assert!(
+        taken * 10 > trials * 8,
+        "the sparse path took only {taken} of {trials}"
+    );
+}
+
+/// A voxel fed one or two points at a time for thousands of coolings (a LiDAR revisiting it): the sparse
+/// path's mean and scatter stay unbiased — mean no farther from the exact statistics than the f32 path's,
+/// the scatter within its code step on average.
+#[test]
+fn sparse_merges_do_not_drift() {
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(4242);
+    let mut dither = Dither::new(8);
+    let (mut code, mut float) = (QuantVoxel::<D, P>::EMPTY, QuantVoxel::<D, P>::EMPTY);
+    let mut truth = ObsStats::<D>::EMPTY;
+    for _ in 0..3000 {
+        let n1 = 1 + rng.next() % 2;
+        let sums = rng.sums(n1, 10);
+        truth.merge(&sums.to_obs(S));
+        code = code.merge_codes_fixed(&sums, &fix, &mut dither);
+        let mut f = float.decode();
+        f.merge(&sums.to_obs(S));
+        float = float.reencode(&f, &mut dither);
+    }
+    let rel = |q: &QuantVoxel<D, P>| {
+        let b = q.decode();
+        let e: f32 = (0..D)
+            .map(|d| (b.mean[d] - truth.mean[d]).powi(2))
+            .sum::<f32>()
+            .sqrt();
+        e / truth.mean.iter().map(|m| m * m).sum::<f32>().sqrt()
+    };
+    let log_ratio = |q: &QuantVoxel<D, P>| {
+        let b = q.decode();
+        (0..D)
+            .map(|d| libm::logf(b.scatter[d] / truth.scatter[d]))
+            .sum::<f32>()
+            / D as f32
+    };
+    let (mean_fixed, mean_f32) = (rel(&code), rel(&float));
+    let (bias_fixed, bias_f32) = (log_ratio(&code), log_ratio(&float));
+    std::println!(
+        "after 3000 sparse coolings: mean error fixed {mean_fixed:.4}, f32 path {mean_f32:.4}; scatter bias (mean ln ratio) fixed {bias_fixed:.3}, f32 path {bias_f32:.3}"
+    );
+    assert_eq!(code.decode().count, truth.count);
+    assert!(
+        mean_fixed <= (1.25 * mean_f32).max(0.02),
+        "mean drifted: {mean_fixed} (f32 path {mean_f32})"
+    );
+    assert!(
+        bias_fixed.abs() < 0.1,
+        "scatter drifted: mean ln ratio {bias_fixed}"
+    );
 }
