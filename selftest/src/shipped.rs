@@ -21,8 +21,10 @@ pub const BOARD_FEATURES: &[&str] = &[];
 /// of thousands in soft float on thumbv6m and riscv32imac. Before, measured on the nine scenarios (`cargo
 /// run --release -p host-sim --example firmware_accuracy -- thumbv7em --twin`: the base station against
 /// the f32 reference, RMS ‖Δμ‖/‖μ‖, with [`SELF_TEST_MEAN_WEIGHTS`]): packed 6-bit 0.0180 (982,706 stream
-/// bytes), 5-bit 0.0286, Rice-coded means 0.0227 (854,372 B). The minimal build (no `full`, so no
-/// `stored-codes`) keeps the packed 6-bit means.
+/// bytes), 5-bit 0.0286, Rice-coded means 0.0227 (854,372 B). With stored codes: 0.0129 (thumbv6m,
+/// riscv32imac 0.0190), 1,375,102 stream bytes, ToF 8×8 4,756 instructions per point on the M4F, 20,788 on
+/// thumbv6m, 14,048 on riscv32imac (docs/numbers.md, "Stored-code summaries"). The minimal build (no
+/// `full`, so no `stored-codes`) keeps the packed 6-bit means.
 #[cfg(feature = "full")]
 pub const SELF_TEST_CODEC: SummaryCodec = SummaryCodec::STORED;
 /// See above.
