@@ -8,7 +8,12 @@ use latentbki::wire::SummaryCodec;
 /// The features of `latentbki` the boards link (this crate's `full` feature, which the boards enable; the
 /// demo's robot uses exactly these), or none in the minimal build.
 #[cfg(feature = "full")]
-pub const BOARD_FEATURES: &[&str] = &["rice-codes", "mean-weights", "sparse-cooling", "stored-codes"];
+pub const BOARD_FEATURES: &[&str] = &[
+    "rice-codes",
+    "mean-weights",
+    "sparse-cooling",
+    "stored-codes",
+];
 /// See above.
 #[cfg(not(feature = "full"))]
 pub const BOARD_FEATURES: &[&str] = &[];
