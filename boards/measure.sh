@@ -15,7 +15,7 @@
 # Usage: boards/measure.sh            everything, prints a Markdown table
 #        boards/measure.sh --size     only build, compare the size and check the flash limit of every
 #                                     measured build: this one and its minimal build, the forgetting build,
-#                                     thumbv6m and riscv32imac (each full and minimal) (CI)
+#                                     thumbv6m, riscv32imac and the NUCLEO board (each full and minimal) (CI)
 #        boards/measure.sh --panic-never   the link-time proof that no panic is reachable (CI): builds with
 #                                     `--features panic-never`, runs it and checks its UART bytes equal the
 #                                     reporting build's
@@ -238,6 +238,19 @@ if [ "${1:-}" = --size ]; then
   FG_ELF=$(build_forgetting)
   check_flash_limit "$FORGETTING_NAME" "$FG_ELF" "$FLASH_LIMIT_FULL" || failed=1
   bash ../measure-targets.sh --size || failed=1   # thumbv6m and riscv32imac
+  # The real board (NUCLEO-F429ZI): its minimal build, then its build (the boards' features and codec), in
+  # its own target dir (the minimal first: the last build is the one left at the board's ELF path).
+  (
+    cd ../stm32f429-nucleo
+    export CARGO_TARGET_DIR="$PWD/target"
+    nucleo_elf() {
+      cargo build --release --quiet "$@" --message-format=json-render-diagnostics |
+        python3 -c 'import json,sys; print([m["executable"] for m in map(json.loads, sys.stdin) if m.get("executable")][-1])'
+    }
+    check_flash_limit "thumbv7em real board, minimal build (stm32f429-nucleo --no-default-features)" \
+      "$(nucleo_elf --no-default-features)" "$FLASH_LIMIT_MINIMAL"
+    check_flash_limit "thumbv7em real board (stm32f429-nucleo)" "$(nucleo_elf)" "$FLASH_LIMIT_FULL"
+  ) || failed=1
   exit "$failed"
 fi
 
