@@ -178,6 +178,11 @@ impl<
         if !setup.mean_weights.is_ones() {
             return Err(SetupError::Map(crate::config::ConfigError::MeanWeights));
         }
+        // Stored codes carry no weights: a weighed mean only its own map can weigh back.
+        #[cfg(feature = "stored-codes")]
+        if setup.codec.is_stored() && setup.mean_weights.has_shifts() {
+            return Err(SetupError::Link(crate::wire::WireError::BadConfig));
+        }
         if setup.int8_scale != 0.0 {
             self.map
                 .set_int8_scale(setup.int8_scale)

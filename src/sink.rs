@@ -7,6 +7,7 @@
 
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
+use crate::quant::StoredCodes;
 
 /// One voxel leaving the local map.
 #[derive(Clone, Copy, Debug)]
@@ -24,6 +25,35 @@ pub struct Evicted<'a, const D: usize> {
     pub time: u32,
 }
 
+/// One voxel leaving the local map as its codes, not decoded ([`EvictionSink::wants_stored`]): what a
+/// link that carries the map's own codes (`wire::SummaryCodec::STORED`) copies onto the wire.
+#[derive(Clone, Copy, Debug)]
+pub struct EvictedStored<'a> {
+    /// Which voxel.
+    pub key: VoxelKey,
+    /// Its codes as the map holds them (n exact; the mean as the codes hold it: a map whose
+    /// [`crate::quant::MeanWeights`] have shifts weighs it, see [`Self::weighed`]).
+    pub codes: StoredCodes<'a>,
+    /// As [`Evicted::residency`].
+    pub residency: u32,
+    /// As [`Evicted::time`].
+    pub time: u32,
+    /// Whether the codes hold a weighed mean (the map's weights have shifts): only its own map can weigh
+    /// it back, so a link refuses such codes.
+    pub weighed: bool,
+}
+
+impl EvictedStored<'_> {
+    /// The statistics the codes stand for, decoded (`None` if they are not the codes of a valid
+    /// D-dimensional voxel, or hold a weighed mean).
+    pub fn decode_into<const D: usize>(&self, out: &mut ObsStats<D>) -> Option<()> {
+        if self.weighed {
+            return None;
+        }
+        self.codes.decode_into(out)
+    }
+}
+
 /// The sink refused a voxel (no room right now); the map keeps it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -33,6 +63,28 @@ pub struct SinkFull;
 pub trait EvictionSink<const D: usize> {
     /// Take one voxel, or refuse with [`SinkFull`] (the map then keeps it).
     fn evict(&mut self, voxel: Evicted<'_, D>) -> Result<(), SinkFull>;
+
+    /// Whether this sink takes voxels as their codes ([`Self::evict_stored`]), so that the map need not
+    /// decode them. False unless the sink says so.
+    #[inline(always)]
+    fn wants_stored(&self) -> bool {
+        false
+    }
+
+    /// Take one voxel as its codes (the map calls this only when [`Self::wants_stored`]). By default the
+    /// codes are decoded and handed to [`Self::evict`]; codes that do not decode are dropped.
+    fn evict_stored(&mut self, voxel: EvictedStored<'_>) -> Result<(), SinkFull> {
+        let mut obs = ObsStats::EMPTY;
+        if voxel.decode_into(&mut obs).is_none() {
+            return Ok(());
+        }
+        self.evict(Evicted {
+            key: voxel.key,
+            obs: &obs,
+            residency: voxel.residency,
+            time: voxel.time,
+        })
+    }
 }
 
 impl<const D: usize, F: FnMut(Evicted<'_, D>) -> Result<(), SinkFull>> EvictionSink<D> for F {

@@ -175,6 +175,35 @@ fn frame_decoder(
     seed
 }
 
+/// `frame_decoder`, a session of stored codes (`SummaryCodec::STORED`): a local map's voxels — one-point
+/// and many-point, some hot when flushed — evicted into the encoder as their codes (statistics have none
+/// to copy), in frames of 600 bytes.
+fn frame_decoder_stored(rng: &mut Rng, chunk: u8, n: usize) -> Vec<u8> {
+    use host_sim::sim::vocab::D;
+    use latentbki::local_map::LocalMap;
+    use latentbki::quant::packed_len;
+    let config = SessionConfig::new(&MapConfig::default(), D, SummaryCodec::STORED, 0);
+    let mut enc = FrameEncoder::<D, 8192, 512>::new(config, EncoderSettings::new(4, 8)).unwrap();
+    let mut map = Box::new(LocalMap::<D, 256, { packed_len(D) }, 8>::EMPTY);
+    map.configure(MapConfig::default(), 100.0).unwrap();
+    for i in 0..n {
+        let y = stats::<D>(rng).mean;
+        for r in 0..1 + i % 4 {
+            let p = [i as f32 * 0.5 + r as f32 * 0.01, 0.2, 0.2];
+            map.add_point(p, &y, &mut enc).unwrap();
+        }
+    }
+    map.flush(&mut enc).unwrap();
+    let mut out = Buf(Vec::new());
+    while enc.queued() > 0 {
+        enc.tick(&mut out, 600, core::iter::empty()).unwrap();
+    }
+    enc.send_stats(&mut out).unwrap();
+    let mut seed = vec![chunk];
+    seed.extend(out.0);
+    seed
+}
+
 /// The robot's back channel: a chunk size, then acknowledgements of its session (robot 1, session 2, the
 /// fuzz target's), one of another robot, one with a flipped byte, and line noise between them.
 fn ack_reader(rng: &mut Rng, chunk: u8, n: u32) -> Vec<u8> {
@@ -267,6 +296,17 @@ fn main() -> std::io::Result<()> {
             "frame_decoder",
             "session-rice-lead",
             frame_decoder(&mut rng, 255, 40, false, RICE_LEAD),
+        ),
+        // A session of stored codes (the boards' codec), whole and in chunks.
+        (
+            "frame_decoder",
+            "session-stored",
+            frame_decoder_stored(&mut rng, 255, 30),
+        ),
+        (
+            "frame_decoder",
+            "session-stored-chunked",
+            frame_decoder_stored(&mut rng, 13, 12),
         ),
     ];
     for (target, name, bytes) in seeds {

@@ -314,9 +314,16 @@ impl DemoRadio {
         .filter_map(|(f, on)| on.then_some(f))
         .collect();
         let boards = latentbki_selftest::BOARD_FEATURES;
-        out += &if used == boards {
+        // The boards also link `stored-codes` (their self-test's codec), which this robot does not use.
+        let theirs: Vec<&str> = boards
+            .iter()
+            .copied()
+            .filter(|f| *f != "stored-codes")
+            .collect();
+        out += &if used == theirs {
             format!(
-                "robot features: {} (exactly the boards' build, `latentbki-selftest/full`)\n",
+                "robot features: {} (exactly the boards' build, `latentbki-selftest/full`, but its \
+                 `stored-codes`)\n",
                 used.join(", ")
             )
         } else {

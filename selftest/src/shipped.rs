@@ -8,19 +8,32 @@ use latentbki::wire::SummaryCodec;
 /// The features of `latentbki` the boards link (this crate's `full` feature, which the boards enable; the
 /// demo's robot uses exactly these), or none in the minimal build.
 #[cfg(feature = "full")]
-pub const BOARD_FEATURES: &[&str] = &["rice-codes", "mean-weights", "sparse-cooling"];
+pub const BOARD_FEATURES: &[&str] = &[
+    "rice-codes",
+    "mean-weights",
+    "sparse-cooling",
+    "stored-codes",
+];
 /// See above.
 #[cfg(not(feature = "full"))]
 pub const BOARD_FEATURES: &[&str] = &[];
 
-/// How the self-test's summaries go on the wire: packed 6-bit means (`SummaryCodec::DEFAULT` but for its
-/// 3 bits), 8 scatter blocks. Measured on the nine scenarios (`cargo run --release -p host-sim --example
-/// firmware_accuracy -- thumbv7em --twin`: the base station against the f32 reference, RMS ‖Δμ‖/‖μ‖; with
-/// [`SELF_TEST_MEAN_WEIGHTS`] unless said): packed 3-bit with all-ones weights 0.1126 (most of it the
-/// wire's: 8-bit 0.0236), 5-bit 0.0286, **6-bit 0.0180** (982,706 stream bytes), Rice-coded means (the
-/// demo's codec, `latentbki::wire::rice`) 0.0227 (854,372 B). Not Rice, though the boards link it: its
-/// encoder picks each summary's steps by trial, and the 8×8 ToF evicts a voxel every second point, so on
-/// the M4F it cost 17,044 instructions per ToF point against 8,128 with these codes (`boards/measure.sh`).
+/// How the self-test's summaries go on the wire: the map's own codes, verbatim ([`SummaryCodec::STORED`]):
+/// an eviction copies the voxel's bytes, with no decode and no float, so the base station's map is the
+/// robot's (its μ error the robot map's) at ≈ 100 B per summary. Why: the 8×8 ToF evicts a voxel every
+/// second point, and a summary codec decodes and codes each one again — on the M4F 8,128 instructions per
+/// ToF point with the packed 6-bit means used before, 17,044 with Rice codes (`boards/measure.sh`), tens
+/// of thousands in soft float on thumbv6m and riscv32imac. Before, measured on the nine scenarios (`cargo
+/// run --release -p host-sim --example firmware_accuracy -- thumbv7em --twin`: the base station against
+/// the f32 reference, RMS ‖Δμ‖/‖μ‖, with [`SELF_TEST_MEAN_WEIGHTS`]): packed 6-bit 0.0180 (982,706 stream
+/// bytes), 5-bit 0.0286, Rice-coded means 0.0227 (854,372 B). With stored codes: 0.0129 (thumbv6m,
+/// riscv32imac 0.0190), 1,375,102 stream bytes, ToF 8×8 4,756 instructions per point on the M4F, 20,788 on
+/// thumbv6m, 14,048 on riscv32imac (docs/numbers.md, "Stored-code summaries"). The minimal build (no
+/// `full`, so no `stored-codes`) keeps the packed 6-bit means.
+#[cfg(feature = "full")]
+pub const SELF_TEST_CODEC: SummaryCodec = SummaryCodec::STORED;
+/// See above.
+#[cfg(not(feature = "full"))]
 pub const SELF_TEST_CODEC: SummaryCodec = SummaryCodec {
     mean_bits: 6,
     ..SummaryCodec::DEFAULT

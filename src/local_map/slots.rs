@@ -9,6 +9,8 @@ use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::obs::ObsStats;
 use crate::quant::QuantVoxel;
+#[cfg(feature = "stored-codes")]
+use crate::sink::EvictedStored;
 use crate::sink::{Evicted, EvictionSink};
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
@@ -42,6 +44,10 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 
     /// Hand a slot to the sink and free it. On refusal the slot stays and this returns false.
     pub(super) fn evict_slot<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
+        #[cfg(feature = "stored-codes")]
+        if sink.wants_stored() {
+            return self.evict_stored(s, sink);
+        }
         let Some(&slot) = self.slots.get(s) else {
             return false;
         };
@@ -71,6 +77,55 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         }
         self.len -= 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+        true
+    }
+
+    /// Empty slot `s` (holding `key`, cold) and drop it from the index.
+    #[cfg(feature = "stored-codes")]
+    fn free_slot(&mut self, s: usize, key: VoxelKey) {
+        if let Some((pos, _)) = self.find(key) {
+            self.index_remove(pos);
+        }
+        if let Some(freed) = self.slots.get_mut(s) {
+            *freed = Slot::empty(C::ZERO);
+        }
+        self.len -= 1;
+        self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+    }
+
+    /// [`Self::evict_slot`] to a sink that takes codes ([`EvictionSink::wants_stored`]): the codes go as
+    /// they are (no decode). A hot voxel cools into its codes first (its points merge, as when another
+    /// voxel needs its entry) and leaves the hot tier; on refusal it stays, cooled.
+    #[cfg(feature = "stored-codes")]
+    fn evict_stored<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
+        if let Some(h) = self
+            .slots
+            .get(s)
+            .and_then(|slot| usize::from(slot.hot).checked_sub(1))
+        {
+            self.cool(h);
+            self.remove_hot(h);
+        }
+        let weighed = self.mean_weights.has_shifts();
+        let Some(slot) = self.slots.get(s) else {
+            return false;
+        };
+        let key = unwrap(slot.key, self.centre);
+        if slot.codes.count > 0.0 {
+            let voxel = EvictedStored {
+                key,
+                codes: slot.codes.stored(),
+                residency: slot.residency,
+                time: C::tick(slot.stamp),
+                weighed,
+            };
+            if sink.evict_stored(voxel).is_err() {
+                self.counters.refused = self.counters.refused.saturating_add(1);
+                return false;
+            }
+            self.counters.evicted = self.counters.evicted.saturating_add(1);
+        }
+        self.free_slot(s, key);
         true
     }
 

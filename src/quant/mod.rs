@@ -41,9 +41,11 @@ macro_rules! inline_with_fpu {
     };
 }
 
+mod bytes;
 mod cooling;
 mod fixed;
 mod weights;
+pub use bytes::{mean_codes_len, scatter_codes_len, StoredCodes, STORED_LAYOUT};
 pub use cooling::Cooling;
 pub use fixed::Int8Fix;
 pub use weights::{MeanWeights, MAX_MEAN_SHIFT};

@@ -24,6 +24,8 @@ pub mod messages;
 pub mod rice;
 pub mod summary;
 
+#[cfg(feature = "stored-codes")]
+pub use codec::write_stored;
 pub use codec::{
     decode_codes, decode_codes_as, encode_codes, encode_codes_as, encode_rice, mean_error_bound,
     stamped_class, wire_count, SummaryCodec, MAX_COUNT,

@@ -324,9 +324,14 @@ pub fn decode_summary<const D: usize>(
         } else {
             codec.lead_len_for(class)
         };
-        let ceiling = Ceiling {
-            mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
-            psi: codes.get(psi_at) == Some(&u8::MAX),
+        // Stored codes have no log-coded values: nothing is clamped to a top code.
+        let ceiling = if cfg!(feature = "stored-codes") && codec.is_stored() {
+            Ceiling::default()
+        } else {
+            Ceiling {
+                mean_scale: codes.first() == Some(&u8::MAX) || codes.get(rest_at) == Some(&u8::MAX),
+                psi: codes.get(psi_at) == Some(&u8::MAX),
+            }
         };
         (obs, ceiling)
     };

@@ -52,6 +52,8 @@ fuzz_target!(|data: &[u8]| {
                                 rice: true,
                                 ..LEAD_BAND
                             },
+                            // The map's own codes, verbatim.
+                            SummaryCodec::STORED,
                         ] {
                             for s in batch.iter::<64>(codec) {
                                 if let Ok(s) = s {

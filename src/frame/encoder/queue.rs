@@ -6,7 +6,11 @@ use super::FrameEncoder;
 use crate::key::VoxelKey;
 use crate::local_map::LiveVoxel;
 use crate::obs::ObsStats;
+#[cfg(feature = "stored-codes")]
+use crate::sink::EvictedStored;
 use crate::sink::{Evicted, EvictionSink, SinkFull};
+#[cfg(feature = "stored-codes")]
+use crate::wire::write_stored;
 use crate::wire::{encode_codes_as, wire_count, SessionConfig};
 
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32; a stamped entry's
@@ -101,6 +105,11 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// The weight a voxel is sent with, or `None` if the decoder would refuse it (not valid; a count not
     /// whole or out of range, or a stamped weight not in (0, 2²⁴]).
     pub(super) fn weight(&self, voxel: &Evicted<'_, D>) -> Option<Weight> {
+        #[cfg(feature = "stored-codes")]
+        if self.config.codec.is_stored() {
+            // Stored codes are the map's own: statistics handed as such have none (see `evict_stored`).
+            return None;
+        }
         #[cfg(feature = "forgetting")]
         if self.stamped() {
             let n = voxel.obs.count;
@@ -178,6 +187,105 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
             });
         if !matches!(written, Some(Ok(_))) {
             // Cannot happen: the codec was validated for D and the queue sized for whole entries.
+            self.stats.invalid = self.stats.invalid.saturating_add(1);
+            return Ok(());
+        }
+        self.len += 1;
+        self.stats.queue_peak = self.stats.queue_peak.max(self.len as u32);
+        Ok(())
+    }
+
+    /// Whether the session carries stored codes ([`crate::wire::SummaryCodec::STORED`]): the map then
+    /// hands its voxels' codes as they are ([`Self::evict_stored`]).
+    #[cfg(feature = "stored-codes")]
+    #[inline(always)]
+    fn wants_stored(&self) -> bool {
+        self.config.codec.is_stored()
+    }
+
+    /// Copy a voxel's codes into the queue now (a session of stored codes), or refuse when it is full. In
+    /// a session of other codes they are decoded and quantized as [`Self::evict`] does.
+    #[cfg(feature = "stored-codes")]
+    fn evict_stored(&mut self, voxel: EvictedStored<'_>) -> Result<(), SinkFull> {
+        if self.wants_stored() {
+            return self.queue_stored(voxel);
+        }
+        self.evict_decoded(voxel)
+    }
+}
+
+#[cfg(feature = "stored-codes")]
+impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    /// Codes handed to an encoder of another codec: decoded, then taken as statistics. Out of line: its
+    /// 516-byte statistics would otherwise sit in the frame of every eviction (the map's eviction inlines
+    /// the sink), raising the stack's high-water mark where this never runs.
+    #[inline(never)]
+    fn evict_decoded(&mut self, voxel: EvictedStored<'_>) -> Result<(), SinkFull> {
+        let mut obs = ObsStats::EMPTY;
+        if voxel.decode_into(&mut obs).is_none() {
+            self.stats.invalid = self.stats.invalid.saturating_add(1);
+            return Ok(());
+        }
+        self.evict(Evicted {
+            key: voxel.key,
+            obs: &obs,
+            residency: voxel.residency,
+            time: voxel.time,
+        })
+    }
+}
+
+#[cfg(feature = "stored-codes")]
+impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    /// The weight a voxel's stored codes are sent with: as [`Self::weight`], from the codes' exact n.
+    fn stored_weight(&self, voxel: &EvictedStored<'_>) -> Option<Weight> {
+        let n = voxel.codes.count;
+        #[cfg(feature = "forgetting")]
+        if self.stamped() {
+            return crate::wire::stamped_class(n).map(|_| Weight::Stamped {
+                n,
+                time: voxel.time,
+            });
+        }
+        wire_count(n).map(Weight::Count)
+    }
+
+    /// [`EvictionSink::evict_stored`] in a session that carries stored codes: the codes are copied into
+    /// the queue as they are. Codes of a weighed mean (only their map can weigh them back) or of a count
+    /// the decoder would refuse are counted invalid and dropped.
+    fn queue_stored(&mut self, voxel: EvictedStored<'_>) -> Result<(), SinkFull> {
+        let Some(weight) = self.stored_weight(&voxel).filter(|_| !voxel.weighed) else {
+            self.stats.invalid = self.stats.invalid.saturating_add(1);
+            return Ok(());
+        };
+        if self.len == self.capacity {
+            self.stats.refused = self.stats.refused.saturating_add(1);
+            return Err(SinkFull);
+        }
+        let bytes = self.slot_bytes(self.slot(self.len));
+        let stamp_len = self.stamp_len();
+        let written = self
+            .queue
+            .get_mut(bytes)
+            .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
+            .map(|(head, rest)| {
+                #[allow(clippy::infallible_destructuring_match)] // one variant without forgetting
+                let word = match weight {
+                    Weight::Count(c) => c,
+                    #[cfg(feature = "forgetting")]
+                    Weight::Stamped { n, time } => {
+                        if let Some(t) = rest.get_mut(..4) {
+                            t.copy_from_slice(&time.to_le_bytes());
+                        }
+                        n.to_bits()
+                    }
+                };
+                *head = entry_head(voxel.key, voxel.residency, word);
+                let codes = rest.get_mut(stamp_len..).unwrap_or_default();
+                write_stored::<D>(&voxel.codes, weight.class(), codes)
+            });
+        if !matches!(written, Some(Ok(_))) {
+            // Codes of another dimension (never from this encoder's map).
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
         }

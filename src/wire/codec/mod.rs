@@ -19,9 +19,13 @@ use core::num::NonZeroUsize;
 use serde::{Deserialize, Serialize};
 
 mod rice_codes;
+mod stored;
 mod transform;
 pub use rice_codes::encode_rice;
 pub(crate) use rice_codes::{decode_rice_at, encode_rice_at, rice_end};
+#[cfg(feature = "stored-codes")]
+pub use stored::write_stored;
+pub use stored::STORED_MARK;
 #[cfg(test)]
 pub(super) use transform::hadamard;
 use transform::{decode_band, encode_band, max_or_zero, rotate};
@@ -87,6 +91,10 @@ impl SummaryCodec {
         let blocks = usize::from(self.psi_blocks);
         if dim == 0 || dim > u16::MAX as usize {
             return Err(WireError::BadConfig);
+        }
+        #[cfg(feature = "stored-codes")]
+        if self.is_stored() {
+            return Ok(());
         }
         if !(2..=8).contains(&self.mean_bits) || blocks == 0 || blocks > dim.min(64) {
             return Err(WireError::BadConfig);
@@ -162,6 +170,10 @@ impl SummaryCodec {
     /// inlined: one copy in flash for its callers on the robot.)
     #[inline(never)]
     pub const fn code_len_for(self, dim: usize, count: u32) -> usize {
+        #[cfg(feature = "stored-codes")]
+        if self.is_stored() {
+            return stored::len(dim, count);
+        }
         let mean = self.mean_len_for(dim, count);
         if count < 2 {
             mean
@@ -181,7 +193,7 @@ impl SummaryCodec {
 
     /// Bytes of the scatter of a summary of `count` points (none for one point).
     pub const fn scatter_len(self, count: u32) -> usize {
-        if count < 2 {
+        if count < 2 || (cfg!(feature = "stored-codes") && self.is_stored()) {
             0
         } else {
             1 + (self.psi_blocks as usize).div_ceil(2)
@@ -283,6 +295,11 @@ pub fn encode_codes_as<const D: usize>(
     if codec.is_rice() {
         return encode_rice(codec, super::rice::Policy::DEFAULT, stats, count, out);
     }
+    #[cfg(feature = "stored-codes")]
+    if codec.is_stored() {
+        // Stored codes are the map's: statistics are not encoded into them here (see `stored`).
+        return Err(WireError::BadConfig);
+    }
     let out = out.get_mut(..len).ok_or(WireError::BufferFull)?;
     out.fill(0);
     // μ: the lead band (if any), then the other components, each after its scale byte.
@@ -379,6 +396,10 @@ pub fn decode_codes_as<const D: usize>(
     if codec.is_rice() {
         return decode_rice_at(codec, (n, count), bytes, 0).map(|(obs, _, _)| obs);
     }
+    #[cfg(feature = "stored-codes")]
+    if codec.is_stored() {
+        return stored::decode(n, count, bytes);
+    }
     for (band, bits) in [
         (0..lead, codec.lead_bits_for(n)),
         (lead..D, codec.rest_bits_for(n)),
@@ -438,6 +459,10 @@ pub fn mean_error_bound(codec: SummaryCodec, dim: usize, codes: &[u8], count: u3
             sq += len as f32 * e * e;
         }
         return libm::sqrtf(sq);
+    }
+    #[cfg(feature = "stored-codes")]
+    if codec.is_stored() {
+        return stored::error_bound(dim, codes);
     }
     let band = |scale_code: Option<&u8>, len: usize, bits: u32| {
         let scale = log_value(scale_code.copied().unwrap_or(0), SCALE_OFFSET);

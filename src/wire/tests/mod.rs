@@ -306,3 +306,45 @@ fn a_lead_band_codes_the_leading_components_finer_and_keeps_the_rest_as_without_
 
 #[cfg(feature = "rice-codes")]
 mod rice;
+
+/// A session of stored codes: its configuration round-trips (the mode is `mean_bits` 255, no extension),
+/// validates whatever its unused fields hold, and its code sizes are the map's (58 and 100 bytes at D = 64).
+#[cfg(feature = "stored-codes")]
+#[test]
+fn a_stored_code_session_round_trips_and_sizes_its_codes_as_the_map() {
+    let codec = SummaryCodec::STORED;
+    assert!(codec.is_stored() && !SummaryCodec::DEFAULT.is_stored());
+    assert_eq!(codec.validate(64), Ok(()));
+    let config = SessionConfig::new(&MapConfig::default(), 64, codec, 0);
+    let header = FrameHeader {
+        version: PROTOCOL_VERSION,
+        robot: 1,
+        session: 2,
+        seq: 0,
+        config_id: config.id(),
+    };
+    let mut buf = [0u8; 128];
+    let n = encode_body(&header, &Message::Session(config), &mut buf).unwrap();
+    assert_eq!(
+        parse_body(&buf[..n]),
+        Ok((header, Message::Session(config)))
+    );
+    assert_ne!(
+        config.id(),
+        SessionConfig::new(&MapConfig::default(), 64, SummaryCodec::DEFAULT, 0).id()
+    );
+    assert_eq!(
+        crate::quant::STORED_LAYOUT,
+        [7, 5, 2],
+        "the layout is protocol 5's: bump the version"
+    );
+    assert_eq!(codec.code_len_for(64, 1), 2 + 56);
+    assert_eq!(codec.code_len_for(64, 2), 4 + crate::quant::packed_len(64));
+    assert_eq!(codec.code_len(64), 100);
+    // A summary of statistics has no stored codes to copy.
+    let s = sample::<64>(3);
+    assert_eq!(
+        encode_codes(codec, &s, &mut [0u8; 128]),
+        Err(WireError::BadConfig)
+    );
+}
