@@ -303,27 +303,26 @@ impl DemoRadio {
             r.total() - r.no_room - r.outside_window
         );
         let c = self.config.codec;
-        // The optional `latentbki` features the robot's setup uses, against the boards' build.
-        // The fixed-point cooling's sparse path is linked wherever the crate's defaults are (the robot's too).
+        // The optional `latentbki` features the robot's build links and its setup uses, against the boards'
+        // build. The fixed-point cooling's sparse path is linked wherever the crate's defaults are (the
+        // robot's too); `stored-codes` is linked, but this link streams Rice codes: stored codes are
+        // ≈ 100 B a summary (this radio's budget is 14 B a point) and need weights without shifts, which
+        // the PCA spreads give (the boards' self-test streams them: docs/numbers.md).
         let used: Vec<&str> = [
             ("rice-codes", c.is_rice()),
             ("mean-weights", robot.weighed),
             ("sparse-cooling", latentbki::quant::Cooling::SPARSE),
+            ("stored-codes", latentbki::wire::SummaryCodec::STORED.is_stored()),
         ]
         .into_iter()
         .filter_map(|(f, on)| on.then_some(f))
         .collect();
         let boards = latentbki_selftest::BOARD_FEATURES;
-        // The boards also link `stored-codes` (their self-test's codec), which this robot does not use.
-        let theirs: Vec<&str> = boards
-            .iter()
-            .copied()
-            .filter(|f| *f != "stored-codes")
-            .collect();
-        out += &if used == theirs {
+        let same = used.len() == boards.len() && used.iter().all(|f| boards.contains(f));
+        out += &if same {
             format!(
-                "robot features: {} (exactly the boards' build, `latentbki-selftest/full`, but its \
-                 `stored-codes`)\n",
+                "robot features: {} (exactly the boards' build, `latentbki-selftest/full`; its summaries \
+                 Rice-coded, where the boards' self-test streams stored codes)\n",
                 used.join(", ")
             )
         } else {

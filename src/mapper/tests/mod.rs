@@ -148,7 +148,6 @@ fn a_refused_setup_sends_nothing() {
             psi_blocks: 8,
             mean_bits_growth: 0,
             lead: 0,
-            lead_bits: 0,
             ..SummaryCodec::DEFAULT
         },
         ..setup()

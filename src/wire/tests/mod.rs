@@ -177,7 +177,6 @@ fn block_means_of_the_scatter_merge_additively() {
         psi_blocks: 8,
         mean_bits_growth: 0,
         lead: 0,
-        lead_bits: 0,
         ..SummaryCodec::DEFAULT
     };
     let s = sample::<64>(3);
@@ -244,7 +243,6 @@ fn a_lead_band_codes_the_leading_components_finer_and_keeps_the_rest_as_without_
         psi_blocks: 2,
         mean_bits_growth: 0,
         lead: 0,
-        lead_bits: 0,
         ..SummaryCodec::DEFAULT
     };
     let lead = SummaryCodec {
