@@ -312,7 +312,10 @@ impl DemoRadio {
             ("rice-codes", c.is_rice()),
             ("mean-weights", robot.weighed),
             ("sparse-cooling", latentbki::quant::Cooling::SPARSE),
-            ("stored-codes", latentbki::wire::SummaryCodec::STORED.is_stored()),
+            (
+                "stored-codes",
+                latentbki::wire::SummaryCodec::STORED.is_stored(),
+            ),
         ]
         .into_iter()
         .filter_map(|(f, on)| on.then_some(f))
