@@ -50,7 +50,7 @@ pub(super) const fn len(dim: usize, count: u32) -> usize {
     }
 }
 
-/// Write a D-dimensional voxel's codes as a summary of `class` points ([`len`] bytes) into `out`. One
+/// Write a D-dimensional voxel's codes as a summary of `class` points (`len(D, class)` bytes) into `out`. One
 /// point has no scatter (its codes are all zero on base 0), so none is sent.
 #[cfg(feature = "stored-codes")]
 pub fn write_stored<const D: usize>(
