@@ -67,11 +67,27 @@ pub fn write_stored<const D: usize>(
     match rest.split_first_chunk_mut::<2>() {
         Some((base, rest)) if class >= 2 => {
             base.copy_from_slice(&codes.psi_base.to_le_bytes());
-            rest.copy_from_slice(codes.packed);
+            copy_exactly(rest, codes.packed)?;
         }
-        _ => rest.copy_from_slice(codes.packed.get(..mean_codes_len(D)).unwrap_or_default()),
+        _ => copy_exactly(
+            rest,
+            codes.packed.get(..mean_codes_len(D)).unwrap_or_default(),
+        )?,
     }
     Ok(out.len())
+}
+
+/// `dst` ← `src`, refused unless their lengths agree (never `copy_from_slice`'s panic: the firmware's
+/// `panic-never` build proves the eviction path has none).
+#[cfg(feature = "stored-codes")]
+fn copy_exactly(dst: &mut [u8], src: &[u8]) -> Result<(), WireError> {
+    if dst.len() != src.len() {
+        return Err(WireError::BadConfig);
+    }
+    for (d, s) in dst.iter_mut().zip(src) {
+        *d = *s;
+    }
+    Ok(())
 }
 
 /// Decode stored codes sized for a summary of `n` points into statistics of weight `count`.
