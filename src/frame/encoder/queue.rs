@@ -11,6 +11,7 @@ use crate::sink::EvictedStored;
 use crate::sink::{Evicted, EvictionSink, SinkFull};
 #[cfg(feature = "stored-codes")]
 use crate::wire::write_stored;
+use crate::wire::WireError;
 use crate::wire::{encode_codes_as, wire_count, SessionConfig};
 
 /// Fixed part of a queue entry: key (3 × i32), residency (u32), point count (u32; a stamped entry's
@@ -89,6 +90,50 @@ pub(super) fn parse_entry_head(head: &[u8; ENTRY_HEAD]) -> (VoxelKey, u32, u32) 
 }
 
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
+    /// Queue one summary: its head (key, residency, weight; a stamped weight's tick after it) and the codes
+    /// `write_codes` puts in the rest of the entry. Refused when the queue is full; codes that cannot be
+    /// written are counted invalid and dropped (the map must not keep retrying them).
+    fn queue_entry(
+        &mut self,
+        key: VoxelKey,
+        residency: u32,
+        weight: Weight,
+        write_codes: impl FnOnce(&mut [u8]) -> Result<usize, WireError>,
+    ) -> Result<(), SinkFull> {
+        if self.len == self.capacity {
+            self.stats.refused = self.stats.refused.saturating_add(1);
+            return Err(SinkFull);
+        }
+        let bytes = self.slot_bytes(self.slot(self.len));
+        let stamp_len = self.stamp_len();
+        let written = self
+            .queue
+            .get_mut(bytes)
+            .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
+            .map(|(head, rest)| {
+                #[allow(clippy::infallible_destructuring_match)] // one variant without forgetting
+                let word = match weight {
+                    Weight::Count(c) => c,
+                    #[cfg(feature = "forgetting")]
+                    Weight::Stamped { n, time } => {
+                        if let Some(t) = rest.get_mut(..4) {
+                            t.copy_from_slice(&time.to_le_bytes());
+                        }
+                        n.to_bits()
+                    }
+                };
+                *head = entry_head(key, residency, word);
+                write_codes(rest.get_mut(stamp_len..).unwrap_or_default())
+            });
+        if !matches!(written, Some(Ok(_))) {
+            self.stats.invalid = self.stats.invalid.saturating_add(1);
+            return Ok(());
+        }
+        self.len += 1;
+        self.stats.queue_peak = self.stats.queue_peak.max(self.len as u32);
+        Ok(())
+    }
+
     /// Whether the session forgets: its summaries are stamped.
     #[inline]
     #[cfg_attr(not(feature = "forgetting"), allow(dead_code))]
@@ -158,41 +203,11 @@ impl<const D: usize, const QB: usize, const N: usize> EvictionSink<D> for FrameE
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
         };
-        if self.len == self.capacity {
-            self.stats.refused = self.stats.refused.saturating_add(1);
-            return Err(SinkFull);
-        }
-        let bytes = self.slot_bytes(self.slot(self.len));
         let codec = self.config.codec;
-        let stamp_len = self.stamp_len();
-        let written = self
-            .queue
-            .get_mut(bytes)
-            .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
-            .map(|(head, rest)| {
-                #[allow(clippy::infallible_destructuring_match)] // one variant without forgetting
-                let word = match weight {
-                    Weight::Count(c) => c,
-                    #[cfg(feature = "forgetting")]
-                    Weight::Stamped { n, time } => {
-                        if let Some(t) = rest.get_mut(..4) {
-                            t.copy_from_slice(&time.to_le_bytes());
-                        }
-                        n.to_bits()
-                    }
-                };
-                *head = entry_head(voxel.key, voxel.residency, word);
-                let codes = rest.get_mut(stamp_len..).unwrap_or_default();
-                encode_codes_as(codec, voxel.obs, weight.class(), codes)
-            });
-        if !matches!(written, Some(Ok(_))) {
-            // Cannot happen: the codec was validated for D and the queue sized for whole entries.
-            self.stats.invalid = self.stats.invalid.saturating_add(1);
-            return Ok(());
-        }
-        self.len += 1;
-        self.stats.queue_peak = self.stats.queue_peak.max(self.len as u32);
-        Ok(())
+        // Cannot fail: the codec was validated for D and the queue sized for whole entries.
+        self.queue_entry(voxel.key, voxel.residency, weight, |codes| {
+            encode_codes_as(codec, voxel.obs, weight.class(), codes)
+        })
     }
 
     /// Whether the session carries stored codes ([`crate::wire::SummaryCodec::STORED`]): the map then
@@ -258,40 +273,10 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             self.stats.invalid = self.stats.invalid.saturating_add(1);
             return Ok(());
         };
-        if self.len == self.capacity {
-            self.stats.refused = self.stats.refused.saturating_add(1);
-            return Err(SinkFull);
-        }
-        let bytes = self.slot_bytes(self.slot(self.len));
-        let stamp_len = self.stamp_len();
-        let written = self
-            .queue
-            .get_mut(bytes)
-            .and_then(|e| e.split_first_chunk_mut::<ENTRY_HEAD>())
-            .map(|(head, rest)| {
-                #[allow(clippy::infallible_destructuring_match)] // one variant without forgetting
-                let word = match weight {
-                    Weight::Count(c) => c,
-                    #[cfg(feature = "forgetting")]
-                    Weight::Stamped { n, time } => {
-                        if let Some(t) = rest.get_mut(..4) {
-                            t.copy_from_slice(&time.to_le_bytes());
-                        }
-                        n.to_bits()
-                    }
-                };
-                *head = entry_head(voxel.key, voxel.residency, word);
-                let codes = rest.get_mut(stamp_len..).unwrap_or_default();
-                write_stored::<D>(&voxel.codes, weight.class(), codes)
-            });
-        if !matches!(written, Some(Ok(_))) {
-            // Codes of another dimension (never from this encoder's map).
-            self.stats.invalid = self.stats.invalid.saturating_add(1);
-            return Ok(());
-        }
-        self.len += 1;
-        self.stats.queue_peak = self.stats.queue_peak.max(self.len as u32);
-        Ok(())
+        // Fails only for codes of another dimension (never from this encoder's map).
+        self.queue_entry(voxel.key, voxel.residency, weight, |codes| {
+            write_stored::<D>(&voxel.codes, weight.class(), codes)
+        })
     }
 }
 
