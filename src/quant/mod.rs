@@ -246,6 +246,18 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         self.reencode_in::<true>(stats, dither);
     }
 
+    /// [`Self::reencode_here`] (`FINE`: [`Self::reencode_fine_here`]) of statistics whose every scatter is
+    /// 0 — a voxel of one point, most of a sparse sensor's coolings: the same codes, without the pass over
+    /// the scatters that looks for their largest.
+    pub(crate) fn reencode_unscattered_here<const FINE: bool>(
+        &mut self,
+        stats: &ObsStats<D>,
+        dither: &mut Dither,
+    ) {
+        debug_assert!(stats.scatter.iter().all(|&v| v.to_bits() == 0));
+        self.encode_in::<FINE>(stats, max_magnitude_bits(&stats.mean), 0, dither);
+    }
+
     fn reencode_in<const FINE: bool>(&mut self, stats: &ObsStats<D>, dither: &mut Dither) {
         // Maxima on the bit patterns: for finite floats |a| < |b| ⟺ (bits & 0x7FFF_FFFF) orders the same as
         // integers, and on a Cortex-M4 an integer compare-and-select is 4 instructions where a float one is 6
@@ -301,6 +313,39 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let top = (psi_max_bits >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
+        let base = i32::from(psi_base);
+        // Unswitched where an FPU makes this the fast path: a voxel of one point (most of a sparse sensor's
+        // coolings) runs a loop with no scatter work in it at all. One copy on an MCU without one (flash).
+        #[cfg(not(any(
+            target_abi = "eabi",
+            all(target_arch = "riscv32", not(target_feature = "f"))
+        )))]
+        if scatter_codes {
+            Self::pack_codes(&mut self.codes, stats, inv, base, true, dither);
+        } else {
+            Self::pack_codes(&mut self.codes, stats, inv, base, false, dither);
+        }
+        #[cfg(any(
+            target_abi = "eabi",
+            all(target_arch = "riscv32", not(target_feature = "f"))
+        ))]
+        Self::pack_codes(&mut self.codes, stats, inv, base, scatter_codes, dither);
+        self.count = stats.count;
+        self.mu_scale = mu_scale;
+        self.psi_base = psi_base;
+    }
+
+    /// The codes of `stats` on step 1/`inv` (mean) and above `base` (scatter, only if `scatter_codes`: else
+    /// the section is left zero, every scatter being 0), into `codes`.
+    #[inline(always)]
+    fn pack_codes(
+        codes: &mut [u8; P],
+        stats: &ObsStats<D>,
+        inv: f32,
+        base: i32,
+        scatter_codes: bool,
+        dither: &mut Dither,
+    ) {
         // Stochastic rounding in 1/256 of a step: ⌊(⌊256·(μᵢ·inv + OFFSET) + ½⌋ + k) / 256⌋ with k the dither
         // byte, which is ⌊μᵢ·inv + OFFSET + (k + ½)/256⌋ exactly (k is an integer) — the dither added as an
         // integer (one `uxtab` on a Cortex-M4) instead of built as a float (five instructions a code).
@@ -315,7 +360,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 ((v * inv_256 + OFFSET_256) as i32 + (dither & 0xFF) as i32 - OFFSET * 256) >> 8;
             q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
         };
-        let base = i32::from(psi_base);
         let psi_code = |v: f32, dither: u32| {
             (psi_key(v, dither as u8) as i32 - base).clamp(0, PSI_CODE_MAX as i32) as u8
         };
@@ -338,7 +382,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                     }
                 }
             };
-        let (mu_part, psi_part) = self.codes.split_at_mut(section_len(D, MU_BITS));
+        let (mu_part, psi_part) = codes.split_at_mut(section_len(D, MU_BITS));
         let (m8s, m_rest) = stats.mean.as_chunks::<8>();
         let (p8s, p_rest) = stats.scatter.as_chunks::<8>();
         let mut outs = mu_part
@@ -383,9 +427,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             put_codes(acc.0, mu_out);
             put_codes(acc.1, psi_out);
         }
-        self.count = stats.count;
-        self.mu_scale = mu_scale;
-        self.psi_base = psi_base;
     }
 
     /// Decode to f32.
@@ -652,6 +693,36 @@ mod tests {
             assert_eq!(got, want, "round {round}");
             assert_eq!(got.decode(), reference_decode(&got), "round {round}");
             prev = got;
+        }
+    }
+
+    /// A voxel of one point skips the scatter pass and the scatter codes: its codes must be the general
+    /// path's, bit for bit, on both grids, whatever codes the voxel held before.
+    #[test]
+    fn one_point_codes_equal_the_general_ones() {
+        let mut rng = Dither::new(19);
+        let mut unit = || (rng.next() >> 8) as f32 / (1 << 24) as f32;
+        let mut prev = QuantVoxel::<D, P>::EMPTY;
+        for round in 0..300 {
+            let spread = [0.01, 1.0, 100.0][round % 3];
+            let s = ObsStats::<D> {
+                count: 1.0,
+                mean: core::array::from_fn(|_| (unit() - 0.5) * spread),
+                scatter: [0.0; D],
+            };
+            let seed = Dither::new(round as u32 + 1);
+            let (mut a, mut b) = (seed.clone(), seed.clone());
+            let (mut fa, mut fb) = (seed.clone(), seed);
+            let mut got = prev;
+            got.reencode_unscattered_here::<false>(&s, &mut b);
+            assert_eq!(got, prev.reencode(&s, &mut a), "round {round}");
+            let mut fine = prev;
+            fine.reencode_unscattered_here::<true>(&s, &mut fb);
+            assert_eq!(fine, prev.reencode_fine(&s, &mut fa), "fine, round {round}");
+            // The next round starts from codes with a scatter section, as a reused slot would.
+            let mut scattered = s;
+            scattered.scatter = core::array::from_fn(|i| unit() * (i + 1) as f32);
+            prev = got.reencode(&scattered, &mut Dither::new(7));
         }
     }
 
