@@ -186,6 +186,47 @@ fn unpack_into(data: &[u8], width: u32, out: &mut [f32], section: Section) {
 }
 }
 
+/// A mean scale (f16) as f32, exactly as `half` converts it: a normal f16 by shifts where an FPU makes the
+/// encode the fast path (`half`'s portable conversion branches through ≈ 20 instructions; an encode converts
+/// three times), anything else through `half`. One path on an MCU without an FPU (flash).
+#[inline(always)]
+fn scale_to_f32(s: f16) -> f32 {
+    #[cfg(not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )))]
+    {
+        let h = u32::from(s.to_bits());
+        let e = h & 0x7C00;
+        if e != 0 && e != 0x7C00 {
+            // Exponent bias 15 → 127: +112 in the exponent field.
+            return f32::from_bits(((h & 0x8000) << 16) | (((h & 0x7FFF) << 13) + (112 << 23)));
+        }
+    }
+    s.to_f32()
+}
+
+/// An f32 as the f16 nearest to it (ties to even), exactly as `half` rounds: [2⁻¹⁴, 65504] (normal f16
+/// results) by integer operations where an FPU makes the encode the fast path, anything else through
+/// `half`.
+#[inline(always)]
+fn scale_from_f32(x: f32) -> f16 {
+    #[cfg(not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )))]
+    {
+        let b = x.to_bits();
+        if (0x3880_0000..=0x477F_E000).contains(&b) {
+            let h = (b >> 13) - (112 << 10);
+            let rest = b & 0x1FFF;
+            let up = rest > 0x1000 || (rest == 0x1000 && h & 1 == 1);
+            return f16::from_bits((h + u32::from(up)) as u16);
+        }
+    }
+    f16::from_f32(x)
+}
+
 /// The minifloat key of a positive finite f32: exponent and top mantissa bits, monotone in the value.
 /// `dither` (0..=255) is a fraction of one code step; 0 truncates. Zero, negative values (sign bit set,
 /// negative as i32) and −0 give key 0.
@@ -290,19 +331,19 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // Clamped to f32::MAX: non-finite inputs (never passed by callers) cannot make a non-finite scale.
         let max_abs = f32::from_bits(mean_max.min(f32::MAX.to_bits()));
         let qmax = MU_QMAX as f32;
-        let prev = self.mu_scale.to_f32();
+        let prev = scale_to_f32(self.mu_scale);
         let keep = prev > 0.0 && max_abs <= prev * qmax && max_abs * keep_within >= prev * qmax;
         let mu_scale = if keep {
             self.mu_scale
         } else {
             // Round the scale up so every |μᵢ| / scale ≤ q_max after f16 rounding.
-            let mut s = f16::from_f32(max_abs * headroom / qmax);
-            if s.to_f32() * qmax < max_abs {
+            let mut s = scale_from_f32(max_abs * headroom / qmax);
+            if scale_to_f32(s) * qmax < max_abs {
                 s = f16::from_bits(s.to_bits() + 1);
             }
             s
         };
-        let scale = mu_scale.to_f32();
+        let scale = scale_to_f32(mu_scale);
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
 
         // S ≥ 0, and a negative value (sign bit set) must not count: as i32 it is negative.
@@ -439,7 +480,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// Decode into existing f32 statistics (no 516-byte temporary on the device stack).
     pub fn decode_into(&self, out: &mut ObsStats<D>) {
         out.count = self.count;
-        let scale = self.mu_scale.to_f32();
+        let scale = scale_to_f32(self.mu_scale);
         let (mu_part, psi_part) = self.codes.split_at(section_len(D, MU_BITS));
         unpack_into(mu_part, MU_BITS, &mut out.mean, Section::Mean(scale));
         let base = u32::from(self.psi_base);
@@ -723,6 +764,49 @@ mod tests {
             let mut scattered = s;
             scattered.scatter = core::array::from_fn(|i| unit() * (i + 1) as f32);
             prev = got.reencode(&scattered, &mut Dither::new(7));
+        }
+    }
+
+    /// The scale conversions must be `half`'s, bit for bit: every f16, and f32 values around every f16
+    /// (ties, the normal range's ends, subnormals, infinities, NaN).
+    #[test]
+    fn scale_conversions_are_halfs() {
+        for h in 0..=u16::MAX {
+            let s = f16::from_bits(h);
+            assert_eq!(scale_to_f32(s).to_bits(), s.to_f32().to_bits(), "{h:#06x}");
+            let x = s.to_f32();
+            if x.is_nan() {
+                continue;
+            }
+            let b = x.to_bits();
+            for d in [0u32, 1, 0xFFF, 0x1000, 0x1001, 0x1FFF] {
+                for v in [b.wrapping_add(d), b.wrapping_sub(d)] {
+                    let v = f32::from_bits(v);
+                    assert_eq!(
+                        scale_from_f32(v).to_bits(),
+                        f16::from_f32(v).to_bits(),
+                        "{v:e}"
+                    );
+                }
+            }
+        }
+        for v in [
+            0.0,
+            -0.0,
+            65504.0,
+            65519.0,
+            65520.0,
+            1e9,
+            f32::INFINITY,
+            f32::NAN,
+            6.1e-5,
+            1e-9,
+        ] {
+            assert_eq!(
+                scale_from_f32(v).to_bits(),
+                f16::from_f32(v).to_bits(),
+                "{v:e}"
+            );
         }
     }
 
