@@ -60,17 +60,19 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         if r >= 1 << 24 {
             return None;
         }
-        let mut codes = [0u8; P];
-        let (mu_out, _) = codes.split_at_mut(super::super::section_len(D, MU_BITS));
-        let mut mu_w = CodeWriter::new(mu_out);
+        let mut mu_codes = [0u8; D];
         let mut d = 0;
         sums.for_each_dim(|i, sum, _| {
             d = if i % 2 == 0 { dither.next() } else { d >> 16 };
             let u = (sum.wrapping_mul(r as i32) + (1 << 9)) >> 10;
             let q = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
-            mu_w.put(MU_BITS, q as u32 & ((1 << MU_BITS) - 1));
+            if let Some(c) = mu_codes.get_mut(i) {
+                *c = q as u8 & ((1 << MU_BITS) - 1) as u8;
+            }
         });
-        mu_w.finish();
+        let mut codes = [0u8; P];
+        let (mu_out, _) = codes.split_at_mut(super::super::section_len(D, MU_BITS));
+        pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
         Some(Self {
             count: 1.0,
             mu_scale,
