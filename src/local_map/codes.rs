@@ -45,6 +45,15 @@ impl Weights {
     ) {
         codes.reencode_here(stats, dither)
     }
+    #[inline(always)]
+    pub(super) fn reencode_unscattered<const D: usize, const P: usize>(
+        &self,
+        codes: &mut crate::quant::QuantVoxel<D, P>,
+        stats: &crate::obs::ObsStats<D>,
+        dither: &mut crate::quant::Dither,
+    ) {
+        codes.reencode_unscattered_here::<false>(stats, dither)
+    }
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>

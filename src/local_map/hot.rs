@@ -122,9 +122,21 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         match (&hot.acc, slot.codes.count > 0.0) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
             // the mean is weighed first (below); on the weights' grid.
+            // One point in a map that never forgets (no decay): its scatter is 0 (`set_point`), so no scatter
+            // pass (a sparse sensor's usual cooling).
             (Acc::Float(o), false) if !weighed && !o.is_empty() => {
-                self.mean_weights
-                    .reencode(&mut slot.codes, o, &mut self.dither)
+                // Not on an MCU without an FPU: its f32 cooling is soft float whatever, and flash is short.
+                let fpu = cfg!(not(any(
+                    target_abi = "eabi",
+                    all(target_arch = "riscv32", not(target_feature = "f"))
+                )));
+                if fpu && o.count == 1.0 && self.clock.forgetting().is_none() {
+                    self.mean_weights
+                        .reencode_unscattered(&mut slot.codes, o, &mut self.dither)
+                } else {
+                    self.mean_weights
+                        .reencode(&mut slot.codes, o, &mut self.dither)
+                }
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.

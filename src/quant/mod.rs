@@ -186,6 +186,47 @@ fn unpack_into(data: &[u8], width: u32, out: &mut [f32], section: Section) {
 }
 }
 
+/// A mean scale (f16) as f32, exactly as `half` converts it: a normal f16 by shifts where an FPU makes the
+/// encode the fast path (`half`'s portable conversion branches through ≈ 20 instructions; an encode converts
+/// three times), anything else through `half`. One path on an MCU without an FPU (flash).
+#[inline(always)]
+fn scale_to_f32(s: f16) -> f32 {
+    #[cfg(not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )))]
+    {
+        let h = u32::from(s.to_bits());
+        let e = h & 0x7C00;
+        if e != 0 && e != 0x7C00 {
+            // Exponent bias 15 → 127: +112 in the exponent field.
+            return f32::from_bits(((h & 0x8000) << 16) | (((h & 0x7FFF) << 13) + (112 << 23)));
+        }
+    }
+    s.to_f32()
+}
+
+/// An f32 as the f16 nearest to it (ties to even), exactly as `half` rounds: [2⁻¹⁴, 65504] (normal f16
+/// results) by integer operations where an FPU makes the encode the fast path, anything else through
+/// `half`.
+#[inline(always)]
+fn scale_from_f32(x: f32) -> f16 {
+    #[cfg(not(any(
+        target_abi = "eabi",
+        all(target_arch = "riscv32", not(target_feature = "f"))
+    )))]
+    {
+        let b = x.to_bits();
+        if (0x3880_0000..=0x477F_E000).contains(&b) {
+            let h = (b >> 13) - (112 << 10);
+            let rest = b & 0x1FFF;
+            let up = rest > 0x1000 || (rest == 0x1000 && h & 1 == 1);
+            return f16::from_bits((h + u32::from(up)) as u16);
+        }
+    }
+    f16::from_f32(x)
+}
+
 /// The minifloat key of a positive finite f32: exponent and top mantissa bits, monotone in the value.
 /// `dither` (0..=255) is a fraction of one code step; 0 truncates. Zero, negative values (sign bit set,
 /// negative as i32) and −0 give key 0.
@@ -246,6 +287,18 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         self.reencode_in::<true>(stats, dither);
     }
 
+    /// [`Self::reencode_here`] (`FINE`: [`Self::reencode_fine_here`]) of statistics whose every scatter is
+    /// 0 — a voxel of one point, most of a sparse sensor's coolings: the same codes, without the pass over
+    /// the scatters that looks for their largest.
+    pub(crate) fn reencode_unscattered_here<const FINE: bool>(
+        &mut self,
+        stats: &ObsStats<D>,
+        dither: &mut Dither,
+    ) {
+        debug_assert!(stats.scatter.iter().all(|&v| v.to_bits() == 0));
+        self.encode_in::<FINE>(stats, max_magnitude_bits(&stats.mean), 0, dither);
+    }
+
     fn reencode_in<const FINE: bool>(&mut self, stats: &ObsStats<D>, dither: &mut Dither) {
         // Maxima on the bit patterns: for finite floats |a| < |b| ⟺ (bits & 0x7FFF_FFFF) orders the same as
         // integers, and on a Cortex-M4 an integer compare-and-select is 4 instructions where a float one is 6
@@ -278,19 +331,19 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // Clamped to f32::MAX: non-finite inputs (never passed by callers) cannot make a non-finite scale.
         let max_abs = f32::from_bits(mean_max.min(f32::MAX.to_bits()));
         let qmax = MU_QMAX as f32;
-        let prev = self.mu_scale.to_f32();
+        let prev = scale_to_f32(self.mu_scale);
         let keep = prev > 0.0 && max_abs <= prev * qmax && max_abs * keep_within >= prev * qmax;
         let mu_scale = if keep {
             self.mu_scale
         } else {
             // Round the scale up so every |μᵢ| / scale ≤ q_max after f16 rounding.
-            let mut s = f16::from_f32(max_abs * headroom / qmax);
-            if s.to_f32() * qmax < max_abs {
+            let mut s = scale_from_f32(max_abs * headroom / qmax);
+            if scale_to_f32(s) * qmax < max_abs {
                 s = f16::from_bits(s.to_bits() + 1);
             }
             s
         };
-        let scale = mu_scale.to_f32();
+        let scale = scale_to_f32(mu_scale);
         let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
 
         // S ≥ 0, and a negative value (sign bit set) must not count: as i32 it is negative.
@@ -301,6 +354,39 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let top = (psi_max_bits >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
 
+        let base = i32::from(psi_base);
+        // Unswitched where an FPU makes this the fast path: a voxel of one point (most of a sparse sensor's
+        // coolings) runs a loop with no scatter work in it at all. One copy on an MCU without one (flash).
+        #[cfg(not(any(
+            target_abi = "eabi",
+            all(target_arch = "riscv32", not(target_feature = "f"))
+        )))]
+        if scatter_codes {
+            Self::pack_codes(&mut self.codes, stats, inv, base, true, dither);
+        } else {
+            Self::pack_codes(&mut self.codes, stats, inv, base, false, dither);
+        }
+        #[cfg(any(
+            target_abi = "eabi",
+            all(target_arch = "riscv32", not(target_feature = "f"))
+        ))]
+        Self::pack_codes(&mut self.codes, stats, inv, base, scatter_codes, dither);
+        self.count = stats.count;
+        self.mu_scale = mu_scale;
+        self.psi_base = psi_base;
+    }
+
+    /// The codes of `stats` on step 1/`inv` (mean) and above `base` (scatter, only if `scatter_codes`: else
+    /// the section is left zero, every scatter being 0), into `codes`.
+    #[inline(always)]
+    fn pack_codes(
+        codes: &mut [u8; P],
+        stats: &ObsStats<D>,
+        inv: f32,
+        base: i32,
+        scatter_codes: bool,
+        dither: &mut Dither,
+    ) {
         // Stochastic rounding in 1/256 of a step: ⌊(⌊256·(μᵢ·inv + OFFSET) + ½⌋ + k) / 256⌋ with k the dither
         // byte, which is ⌊μᵢ·inv + OFFSET + (k + ½)/256⌋ exactly (k is an integer) — the dither added as an
         // integer (one `uxtab` on a Cortex-M4) instead of built as a float (five instructions a code).
@@ -315,7 +401,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 ((v * inv_256 + OFFSET_256) as i32 + (dither & 0xFF) as i32 - OFFSET * 256) >> 8;
             q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8
         };
-        let base = i32::from(psi_base);
         let psi_code = |v: f32, dither: u32| {
             (psi_key(v, dither as u8) as i32 - base).clamp(0, PSI_CODE_MAX as i32) as u8
         };
@@ -338,7 +423,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                     }
                 }
             };
-        let (mu_part, psi_part) = self.codes.split_at_mut(section_len(D, MU_BITS));
+        let (mu_part, psi_part) = codes.split_at_mut(section_len(D, MU_BITS));
         let (m8s, m_rest) = stats.mean.as_chunks::<8>();
         let (p8s, p_rest) = stats.scatter.as_chunks::<8>();
         let mut outs = mu_part
@@ -383,9 +468,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             put_codes(acc.0, mu_out);
             put_codes(acc.1, psi_out);
         }
-        self.count = stats.count;
-        self.mu_scale = mu_scale;
-        self.psi_base = psi_base;
     }
 
     /// Decode to f32.
@@ -398,7 +480,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// Decode into existing f32 statistics (no 516-byte temporary on the device stack).
     pub fn decode_into(&self, out: &mut ObsStats<D>) {
         out.count = self.count;
-        let scale = self.mu_scale.to_f32();
+        let scale = scale_to_f32(self.mu_scale);
         let (mu_part, psi_part) = self.codes.split_at(section_len(D, MU_BITS));
         unpack_into(mu_part, MU_BITS, &mut out.mean, Section::Mean(scale));
         let base = u32::from(self.psi_base);
@@ -652,6 +734,79 @@ mod tests {
             assert_eq!(got, want, "round {round}");
             assert_eq!(got.decode(), reference_decode(&got), "round {round}");
             prev = got;
+        }
+    }
+
+    /// A voxel of one point skips the scatter pass and the scatter codes: its codes must be the general
+    /// path's, bit for bit, on both grids, whatever codes the voxel held before.
+    #[test]
+    fn one_point_codes_equal_the_general_ones() {
+        let mut rng = Dither::new(19);
+        let mut unit = || (rng.next() >> 8) as f32 / (1 << 24) as f32;
+        let mut prev = QuantVoxel::<D, P>::EMPTY;
+        for round in 0..300 {
+            let spread = [0.01, 1.0, 100.0][round % 3];
+            let s = ObsStats::<D> {
+                count: 1.0,
+                mean: core::array::from_fn(|_| (unit() - 0.5) * spread),
+                scatter: [0.0; D],
+            };
+            let seed = Dither::new(round as u32 + 1);
+            let (mut a, mut b) = (seed.clone(), seed.clone());
+            let (mut fa, mut fb) = (seed.clone(), seed);
+            let mut got = prev;
+            got.reencode_unscattered_here::<false>(&s, &mut b);
+            assert_eq!(got, prev.reencode(&s, &mut a), "round {round}");
+            let mut fine = prev;
+            fine.reencode_unscattered_here::<true>(&s, &mut fb);
+            assert_eq!(fine, prev.reencode_fine(&s, &mut fa), "fine, round {round}");
+            // The next round starts from codes with a scatter section, as a reused slot would.
+            let mut scattered = s;
+            scattered.scatter = core::array::from_fn(|i| unit() * (i + 1) as f32);
+            prev = got.reencode(&scattered, &mut Dither::new(7));
+        }
+    }
+
+    /// The scale conversions must be `half`'s, bit for bit: every f16, and f32 values around every f16
+    /// (ties, the normal range's ends, subnormals, infinities, NaN).
+    #[test]
+    fn scale_conversions_are_halfs() {
+        for h in 0..=u16::MAX {
+            let s = f16::from_bits(h);
+            assert_eq!(scale_to_f32(s).to_bits(), s.to_f32().to_bits(), "{h:#06x}");
+            let x = s.to_f32();
+            if x.is_nan() {
+                continue;
+            }
+            let b = x.to_bits();
+            for d in [0u32, 1, 0xFFF, 0x1000, 0x1001, 0x1FFF] {
+                for v in [b.wrapping_add(d), b.wrapping_sub(d)] {
+                    let v = f32::from_bits(v);
+                    assert_eq!(
+                        scale_from_f32(v).to_bits(),
+                        f16::from_f32(v).to_bits(),
+                        "{v:e}"
+                    );
+                }
+            }
+        }
+        for v in [
+            0.0,
+            -0.0,
+            65504.0,
+            65519.0,
+            65520.0,
+            1e9,
+            f32::INFINITY,
+            f32::NAN,
+            6.1e-5,
+            1e-9,
+        ] {
+            assert_eq!(
+                scale_from_f32(v).to_bits(),
+                f16::from_f32(v).to_bits(),
+                "{v:e}"
+            );
         }
     }
 

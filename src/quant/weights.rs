@@ -194,6 +194,22 @@ impl MeanWeights {
             codes.reencode_fine_here(stats, dither)
         }
     }
+
+    /// [`Self::reencode`] of statistics whose every scatter is 0 (a voxel of one point; see
+    /// [`super::QuantVoxel::reencode_unscattered_here`]).
+    #[inline]
+    pub(crate) fn reencode_unscattered<const D: usize, const P: usize>(
+        &self,
+        codes: &mut super::QuantVoxel<D, P>,
+        stats: &crate::obs::ObsStats<D>,
+        dither: &mut super::Dither,
+    ) {
+        if self.is_ones() {
+            codes.reencode_unscattered_here::<false>(stats, dither)
+        } else {
+            codes.reencode_unscattered_here::<true>(stats, dither)
+        }
+    }
 }
 
 #[cfg(test)]
