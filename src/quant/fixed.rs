@@ -88,6 +88,28 @@ impl Int8Fix {
         }
     }
 
+    /// A new mean scale for the largest |m| `max_abs` (steps with [`MEAN_FRAC`] fraction bits, ≤ 2²⁴):
+    /// max|m|·headroom/q_max (`headroom` in units of 2⁻²¹, [`grid`]) in f16, rounded up so that max|m| fits;
+    /// with it σ in steps ([`Self::steps_of`]). Zero for zero.
+    #[cfg_attr(feature = "sparse-cooling", inline(never))]
+    #[cfg_attr(not(feature = "sparse-cooling"), inline(always))]
+    fn fresh_scale(&self, max_abs: i32, headroom: u32) -> (f16, i32) {
+        if max_abs == 0 {
+            return (f16::ZERO, 0);
+        }
+        // max·headroom/63 · s in 16-bit pieces (f16 keeps 11 bits): headroom/63 · 2²¹.
+        let (t, e) = top16(max_abs as u32);
+        let (p, pe) = top16(t * headroom);
+        let bits = f32_bits(p * (self.s.m >> 8), e + pe - MEAN_FRAC - 21 + 8 + self.s.e);
+        let mut s = f16::from_f32(f32::from_bits(bits));
+        let mut sig = self.steps_of(s);
+        if sig.saturating_mul(MU_QMAX) < max_abs {
+            s = f16::from_bits(s.to_bits() + 1);
+            sig = self.steps_of(s);
+        }
+        (s, sig)
+    }
+
     /// An f16 mean scale σ in code steps, with [`MEAN_FRAC`] fraction bits.
     #[inline(never)]
     fn steps_of(&self, sigma: f16) -> i32 {
@@ -242,11 +264,42 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         fine: bool,
         dither: &mut Dither,
     ) -> Self {
+        self.merge_in::<true>(sums, fix, fine, dither)
+    }
+
+    /// [`Self::merge_codes_fixed`] by the general merge alone (no short path): what the tests hold the
+    /// short paths to.
+    #[cfg(all(test, feature = "sparse-cooling"))]
+    fn merge_general(
+        &self,
+        sums: &CodeSums<D>,
+        fix: &Int8Fix,
+        fine: bool,
+        dither: &mut Dither,
+    ) -> Self {
+        self.merge_in::<false>(sums, fix, fine, dither)
+    }
+
+    /// The merge; `SHORT`: a sparse sensor's coolings take their short paths (feature `sparse-cooling`).
+    #[inline(always)]
+    fn merge_in<const SHORT: bool>(
+        &self,
+        sums: &CodeSums<D>,
+        fix: &Int8Fix,
+        fine: bool,
+        dither: &mut Dither,
+    ) -> Self {
         let n1 = sums.count;
         if n1 == 0 || fix.s.m == 0 {
             return *self;
         }
         let n0 = count_of(self.count.to_bits());
+        #[cfg(feature = "sparse-cooling")]
+        if SHORT && n0 == 0 && n1 == 1 {
+            if let Some(first) = Self::encode_lone(sums, fix, fine, dither) {
+                return first;
+            }
+        }
         let n = n0.saturating_add(n1).min(1 << 30);
         let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
         // The trip count hidden from the optimiser: rolled loops, ≈ 1.5 KB of code instead of ≈ 5 KB.
@@ -268,7 +321,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let rn = recip(n);
         let ctx = ScatterUnits::new(fix, n0, n);
         #[cfg(feature = "sparse-cooling")]
-        if n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
+        if SHORT && n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
             if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, fine, dither) {
                 return merged;
             }
@@ -321,20 +374,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             && max_abs.saturating_mul(within.0) >= sigma.saturating_mul(qmax * within.1);
         let (mu_scale, sigma) = if keep {
             (self.mu_scale, sigma)
-        } else if max_abs == 0 {
-            (f16::ZERO, 0)
         } else {
-            // max·headroom/63 · s in 16-bit pieces (f16 keeps 11 bits): headroom/63 · 2²¹.
-            let (t, e) = top16(max_abs as u32);
-            let (p, pe) = top16(t * headroom);
-            let bits = f32_bits(p * (fix.s.m >> 8), e + pe - MEAN_FRAC - 21 + 8 + fix.s.e);
-            let mut s = f16::from_f32(f32::from_bits(bits));
-            let mut sig = fix.steps_of(s);
-            if sig.saturating_mul(qmax) < max_abs {
-                s = f16::from_bits(s.to_bits() + 1);
-                sig = fix.steps_of(s);
-            }
-            (s, sig)
+            fix.fresh_scale(max_abs, headroom)
         };
 
         let top = (psi_max_bits.min(f32::MAX.to_bits()) >> PSI_SHIFT) + 1;

@@ -11,13 +11,22 @@
 //!   voxel's base), plus S₁ + n₀/(n·n₁)·y² with y = Σc − n₁m₀; the new key found by walking the table up from
 //!   the old one (S only grows), dithered linearly within its step as `psi_key` does.
 //!
-//! Codes are read and written as bit streams (no per-code address arithmetic). When the scale must change,
-//! the scatter outgrows the table or a range would not fit 32 bits, it returns `None` and the general
-//! path cools the voxel (the dither stream untouched).
+//! The codes are unpacked eight at a time into one byte each, the means, the scatters' growth and the keys
+//! computed in separate loops over those bytes, and packed eight at a time: on a Cortex-M0 (8 low registers)
+//! the one loop over the packed bit streams that did all of it kept ≈ 20 values live and spilled them.
+//! When the scale must change, the scatter outgrows the table or a range would not fit 32 bits, it returns
+//! `None` and the general path cools the voxel (the dither stream untouched).
+//!
+//! The other cooling a sparse sensor asks for: a first visit of one point (an 8×8 ToF's usual cooling, a
+//! voxel per point), its codes straight from the point's ([`QuantVoxel::encode_lone`]).
+//!
+//! Both give the codes of the code they replaced bit for bit (the QEMU boards' streams unchanged).
+//! `bash boards/measure-targets.sh --table thumbv6m`, instructions per point, f = 3, i8 features: ToF 8×8
+//! 18,233 → 14,487, scanning LiDAR 11,848 → 9,934, depth frames 1,849 → 1,839.
 
 use super::super::{Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_BITS, PSI_CODE_MAX};
 use super::bits::*;
-use super::ScatterUnits;
+use super::{Int8Fix, ScatterUnits};
 use crate::obs::{scatter_numerator, CodeSums};
 
 /// Most new points this path takes (the bound of its 32-bit ranges; more go the general way).
@@ -27,6 +36,49 @@ pub(super) const SPARSE_MAX_NEW: u32 = 8;
 const KEYS: usize = 40;
 
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {
+    /// A first visit of one point (a ToF's usual cooling: a voxel per point): its mean is its codes c on a
+    /// fresh scale, its scatter 0 — Ψ codes 0 on base 0, what the general merge computes for it (m₀ = 0,
+    /// x = Σc, t = 0), without its passes. The codes are the general merge's, bit for bit: with m = c·2¹⁴,
+    /// ⌊(m·r + 2²³)/2²⁴⌋ = ⌊(c·r + 2⁹)/2¹⁰⌋ for r = 2³²/σ, a 32-bit product since |c| ≤ 127 and r < 2²⁴
+    /// (else `None`: the general merge takes it).
+    #[inline(never)]
+    pub(super) fn encode_lone(
+        sums: &CodeSums<D>,
+        fix: &Int8Fix,
+        fine: bool,
+        dither: &mut Dither,
+    ) -> Option<Self> {
+        let mut max_c = 0;
+        sums.for_each_dim(|_, sum, _| max_c = max_c.max(sum.unsigned_abs()));
+        let max_abs = (max_c << super::MEAN_FRAC).min(1 << 24) as i32;
+        let (mu_scale, sigma) = fix.fresh_scale(max_abs, super::grid(fine).1);
+        let r = if sigma > 0 {
+            u32::MAX / sigma.unsigned_abs()
+        } else {
+            0
+        };
+        if r >= 1 << 24 {
+            return None;
+        }
+        let mut codes = [0u8; P];
+        let (mu_out, _) = codes.split_at_mut(super::super::section_len(D, MU_BITS));
+        let mut mu_w = CodeWriter::new(mu_out);
+        let mut d = 0;
+        sums.for_each_dim(|i, sum, _| {
+            d = if i % 2 == 0 { dither.next() } else { d >> 16 };
+            let u = (sum.wrapping_mul(r as i32) + (1 << 9)) >> 10;
+            let q = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
+            mu_w.put(MU_BITS, q as u32 & ((1 << MU_BITS) - 1));
+        });
+        mu_w.finish();
+        Some(Self {
+            count: 1.0,
+            mu_scale,
+            psi_base: 0,
+            codes,
+        })
+    }
+
     /// These codes (of `n0` ≥ 2 points on scale `sigma` > 0, in steps with [`super::MEAN_FRAC`] fraction
     /// bits) merged with at most [`SPARSE_MAX_NEW`] points' sums, on the same mean scale; `None` if the
     /// scale must change or a range does not fit (nothing consumed from `dither` then).
@@ -92,8 +144,59 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let wsh = we - 16 - 2 * f - g;
         let (v, ve) = top16(recip(n1));
         let vsh = ve - 16 - g;
-        // The values of the keys from the base up: four from the general path's conversion, the rest by
-        // halving (an octave per 4 keys).
+        // Four loops over plain arrays, each with few live values (the M0 has 8 low registers: one loop
+        // over the packed codes that did all of it spilled ≈ 56 values a dimension to the stack): the codes
+        // unpacked; the means (then the scale checked, before any scatter work); the new points' scatters;
+        // the keys. Then both sections packed.
+        let (mu_in, psi_in) = self.codes.split_at(super::super::section_len(D, MU_BITS));
+        let mut qs = [0u8; D];
+        let mut keys = [0u8; D];
+        unpack_codes::<{ MU_BITS as usize }>(mu_in, &mut qs);
+        unpack_codes::<{ PSI_BITS as usize }>(psi_in, &mut keys);
+        // A mean code, sign-extended.
+        let q_at = |i: usize| i32::from((qs.get(i).copied().unwrap_or(0) << 1) as i8 >> 1);
+
+        // ---- means: byte 0 of each dimension's 16 dither bits.
+        let mut mu_codes = [0u8; D];
+        let mut max_u = 0u32;
+        let mut dith = dither.clone();
+        let mut d = 0;
+        sums.for_each_dim(|i, sum, _| {
+            d = if i % 2 == 0 { dith.next() } else { d >> 16 };
+            let q = q_at(i);
+            let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
+            let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
+            max_u = max_u.max(u.unsigned_abs());
+            let code = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
+            if let Some(c) = mu_codes.get_mut(i) {
+                *c = code as u8 & ((1 << MU_BITS) - 1) as u8;
+            }
+        });
+        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
+        // on the fine grid, as `reencode_fine`).
+        let full = (MU_QMAX as u32) << 8;
+        let ((ka, kb), _) = super::grid(fine);
+        if max_u > full || max_u * (ka as u32) < full * (kb as u32) {
+            return None;
+        }
+
+        // ---- what the new points add to each scatter, in units.
+        let mut adds = [0u32; D];
+        sums.for_each_dim(|i, sum, sq| {
+            let q = q_at(i);
+            let y =
+                ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
+            let mut s = shl_sat(mul_q16(y.wrapping_mul(y) as u32, w), wsh);
+            if n1 > 1 {
+                s = s.saturating_add(shl_sat(mul_q16(scatter_numerator(n1, sum, sq), v), vsh));
+            }
+            if let Some(a) = adds.get_mut(i) {
+                *a = s;
+            }
+        });
+
+        // ---- the keys. Their values from the base up: four from the general path's conversion, the rest
+        // by halving (an octave per 4 keys).
         let base_old = u32::from(self.psi_base);
         let mut table = [0u32; KEYS];
         for c in (0..KEYS).rev() {
@@ -105,40 +208,14 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         if table[KEYS - 1] >= 1 << 30 {
             return None; // saturated: the table does not reach
         }
-
-        let mut out = [0u8; P];
-        let (mu_out, psi_out) = out.split_at_mut(super::super::section_len(D, MU_BITS));
-        let (mu_in, psi_in) = self.codes.split_at(super::super::section_len(D, MU_BITS));
-        let (mut mu_r, mut psi_r, mut mu_w) = (
-            CodeReader::new(mu_in),
-            CodeReader::new(psi_in),
-            CodeWriter::new(mu_out),
-        );
-        // The Ψ codes written as if the base stays (almost always), the keys kept for when it moves.
-        let mut psi_w = CodeWriter::new(&mut *psi_out);
-        let mut keys = [0u8; D];
-        let (mut max_u, mut top) = (0u32, 0usize);
+        let mut top = 0usize;
         let mut dith = dither.clone();
         let mut d = 0;
-        for i in 0..core::hint::black_box(D) {
+        for (i, (k, &add)) in keys.iter_mut().zip(&adds).enumerate() {
             d = if i % 2 == 0 { dith.next() } else { d >> 16 };
-            let (sum, sq) = (sums.sum(i), sums.square(i));
-            let q = (mu_r.next(MU_BITS) << (32 - MU_BITS)) as i32 >> (32 - MU_BITS);
-            let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
-            let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
-            max_u = max_u.max(u.unsigned_abs());
-            let code = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
-            mu_w.put(MU_BITS, code as u32 & ((1 << MU_BITS) - 1));
-
-            let y =
-                ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
-            let mut s = shl_sat(mul_q16(y.wrapping_mul(y) as u32, w), wsh);
-            if n1 > 1 {
-                s = s.saturating_add(shl_sat(mul_q16(scatter_numerator(n1, sum, sq), v), vsh));
-            }
-            let mut key = psi_r.next(PSI_BITS) as usize;
+            let mut key = usize::from(*k);
             let mut lo = table.get(key).copied().unwrap_or(u32::MAX);
-            let s = s.saturating_add(lo);
+            let s = add.saturating_add(lo);
             // Up from the old key (S only grows) to the one whose step holds S.
             let hi = loop {
                 let next = table.get(key + 1).copied().unwrap_or(0);
@@ -161,33 +238,22 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             };
             let byte = (d >> 8) & 0xFF;
             key += usize::from(r << 9 >= (511 - 2 * byte) * st);
-            if let Some(k) = keys.get_mut(i) {
-                *k = key as u8;
-            }
-            psi_w.put(PSI_BITS, key.min(PSI_CODE_MAX as usize) as u32);
+            *k = key as u8;
         }
-        psi_w.finish();
-        mu_w.finish();
-        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
-        // on the fine grid, as `reencode_fine`).
-        let full = (MU_QMAX as u32) << 8;
-        let ((a, b), _) = super::grid(fine);
-        if max_u > full || max_u * (a as u32) < full * (b as u32) {
-            return None;
-        }
-        // The base as `reencode` sets it: the floor key of the largest scatter plus one, less 31.
+
+        // ---- both sections packed; the base as `reencode` sets it: the floor key of the largest scatter
+        // plus one, less 31.
         let base = (base_old + top as u32 + 1).saturating_sub(PSI_CODE_MAX);
         let moved = base as i32 - base_old as i32;
         if moved != 0 {
-            let mut psi_w = CodeWriter::new(psi_out);
-            for &key in &keys {
-                psi_w.put(
-                    PSI_BITS,
-                    (i32::from(key) - moved).clamp(0, PSI_CODE_MAX as i32) as u32,
-                );
+            for k in keys.iter_mut() {
+                *k = (i32::from(*k) - moved).clamp(0, PSI_CODE_MAX as i32) as u8;
             }
-            psi_w.finish();
         }
+        let mut out = [0u8; P];
+        let (mu_out, psi_out) = out.split_at_mut(super::super::section_len(D, MU_BITS));
+        pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
+        pack_codes::<{ PSI_BITS as usize }>(&keys, psi_out);
         *dither = dith;
         Some(Self {
             count: f32::from_bits(f32_bits(n, 0)),

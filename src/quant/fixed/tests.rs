@@ -389,3 +389,94 @@ fn sparse_merges_do_not_drift() {
         "scatter drifted: mean ln ratio {bias_fixed}"
     );
 }
+
+/// The lone-point short path (a first visit of one point) codes what the general merge codes, bit for bit,
+/// and leaves the dither stream where it leaves it: on both grids, for codes at the ends of their range
+/// and all zero.
+#[cfg(feature = "sparse-cooling")]
+#[test]
+fn a_lone_point_takes_the_short_path_to_the_general_merges_codes() {
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(0x007E_571D);
+    let mut short_taken = 0;
+    for trial in 0..2000u32 {
+        let sums = match trial {
+            0 => CodeSums::EMPTY,
+            1 => {
+                let mut c = CodeSums::EMPTY;
+                c.add(&[0; D]);
+                c
+            }
+            2 | 3 => {
+                let mut c = CodeSums::EMPTY;
+                c.add(&core::array::from_fn(|d| {
+                    if (d + trial as usize).is_multiple_of(2) {
+                        127
+                    } else {
+                        -127
+                    }
+                }));
+                c
+            }
+            _ => {
+                let offset = (rng.next() % 200) as i32 - 100;
+                rng.sums(1, offset)
+            }
+        };
+        let fine = trial % 2 == 1;
+        let (mut d_short, mut d_general) = (Dither::new(trial + 1), Dither::new(trial + 1));
+        let empty = QuantVoxel::<D, P>::EMPTY;
+        let short = empty.merge_codes_fixed(&sums, &fix, fine, &mut d_short);
+        let general = empty.merge_general(&sums, &fix, fine, &mut d_general);
+        assert_eq!(short, general, "trial {trial}");
+        assert_eq!(
+            d_short.next(),
+            d_general.next(),
+            "trial {trial}: the dither"
+        );
+        if sums.count == 1 {
+            short_taken += usize::from(
+                QuantVoxel::<D, P>::encode_lone(&sums, &fix, fine, &mut Dither::new(1)).is_some(),
+            );
+        }
+    }
+    assert!(
+        short_taken >= 1998,
+        "the short path took {short_taken} of 1999 lone points"
+    );
+}
+
+/// The eight-at-a-time unpacking and packing of the sparse path read and write the layout the code-at-a-time
+/// reader and writer do (whole groups of eight and a last partial one), and round-trip.
+#[cfg(feature = "sparse-cooling")]
+#[test]
+fn codes_unpack_and_pack_eight_at_a_time_as_one_at_a_time() {
+    fn check<const W: usize>(rng: &mut Rng, dims: usize) {
+        let len = (dims * W).div_ceil(8);
+        let mut data = [0u8; 64];
+        let data = &mut data[..len];
+        for b in data.iter_mut() {
+            *b = rng.next() as u8;
+        }
+        // Bits past the last code are 0 in a packed section.
+        if !(dims * W).is_multiple_of(8) {
+            data[len - 1] &= (1u8 << ((dims * W) % 8)) - 1;
+        }
+        let mut codes = [0u8; 80];
+        unpack_codes::<W>(data, &mut codes[..dims]);
+        let mut r = CodeReader::new(data);
+        for (i, &c) in codes[..dims].iter().enumerate() {
+            assert_eq!(u32::from(c), r.next(W as u32), "W {W} dims {dims} code {i}");
+        }
+        let mut back = [0u8; 64];
+        pack_codes::<W>(&codes[..dims], &mut back[..len]);
+        assert_eq!(&back[..len], &*data, "W {W} dims {dims}");
+    }
+    let mut rng = Rng(0x000C_0DE5);
+    for dims in [1, 7, 8, 13, 16, 64, 67] {
+        for _ in 0..50 {
+            check::<{ MU_BITS as usize }>(&mut rng, dims);
+            check::<{ super::super::PSI_BITS as usize }>(&mut rng, dims);
+        }
+    }
+}
