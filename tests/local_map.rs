@@ -455,7 +455,9 @@ fn a_move_keeps_exactly_the_voxels_within_the_radius() {
 
 /// A voxel a refusing sink keeps while the robot travels holds the window's centre where moving it would
 /// take the voxel's key out of the wrap range (2¹⁵ voxels on an axis): the centre follows the robot exactly
-/// until then, the voxel stays readable, and it leaves (the centre moving) once the sink takes it.
+/// until then, the voxel stays readable, and it leaves (the centre moving) once the sink takes it. (A move
+/// looks for such a key only once the distance travelled since the last move that left nothing outside
+/// could have taken one there: this fails if that bound undercounts.)
 #[test]
 fn a_stranded_voxel_holds_the_centre_at_the_wrap_range() {
     let mut map = boxed::<64>(1.0); // 0.1 m voxels, a 10-voxel radius
