@@ -9,8 +9,11 @@ Prints the 12 functions that executed the most instructions inside the regions.
 import bisect, collections, re, sys
 
 dis, log = sys.argv[1], sys.argv[2]
+# Mapping symbols (`$t`, `$d`, `$x`…: where Thumb code or data starts) are not functions; a system
+# llvm-objdump prints them as labels of their own, which would take the instructions after them.
 funcs = sorted((int(m.group(1), 16), m.group(2)) for m in
-               (re.match(r'^([0-9a-f]+) <(.*)>:', l) for l in open(dis)) if m)
+               (re.match(r'^([0-9a-f]+) <(.*)>:', l) for l in open(dis))
+               if m and not m.group(2).startswith('$'))
 starts = [a for a, _ in funcs]
 agg = collections.Counter()
 for l in open(log):

@@ -452,3 +452,47 @@ fn a_move_keeps_exactly_the_voxels_within_the_radius() {
     let held: f64 = map.iter().map(|v| f64::from(v.obs.count)).sum();
     assert_eq!(held + sink.points, added as f64);
 }
+
+/// A voxel a refusing sink keeps while the robot travels holds the window's centre where moving it would
+/// take the voxel's key out of the wrap range (2¹⁵ voxels on an axis): the centre follows the robot exactly
+/// until then, the voxel stays readable, and it leaves (the centre moving) once the sink takes it. (A move
+/// looks for such a key only once the distance travelled since the last move that left nothing outside
+/// could have taken one there: this fails if that bound undercounts.)
+#[test]
+fn a_stranded_voxel_holds_the_centre_at_the_wrap_range() {
+    let mut map = boxed::<64>(1.0); // 0.1 m voxels, a 10-voxel radius
+    let mut sink = Collect::default();
+    let y = [0.5f32; D];
+    map.add_point([0.05, 0.05, 0.05], &y, &mut sink).unwrap();
+    let held = VoxelKey::new(0, 0, 0);
+    let before = map.get(held).unwrap();
+    sink.refuse = true;
+    // Steps of 1,000 voxels (100 m) along x: the voxel stays wrap-safe up to 32,767 voxels away.
+    let mut held_at = None;
+    for step in 1..=40 {
+        let x = step as f32 * 100.0 + 0.05;
+        let previous = map.centre();
+        map.move_window([x, 0.05, 0.05], &mut sink);
+        let wanted = VoxelKey::new(step * 1000, 0, 0);
+        if wanted.x < 1 << 15 {
+            assert_eq!(
+                map.centre(),
+                wanted,
+                "step {step}: the centre follows the robot"
+            );
+        } else {
+            assert_eq!(map.centre(), previous, "step {step}: the centre is held");
+            held_at.get_or_insert(previous);
+        }
+        assert_eq!(map.get(held), Some(before), "step {step}: the voxel stays");
+    }
+    assert_eq!(held_at, Some(VoxelKey::new(32_000, 0, 0)));
+    assert!(sink.voxels.is_empty());
+    // The sink takes it: it leaves, and the centre reaches the robot.
+    sink.refuse = false;
+    map.move_window([4000.05, 0.05, 0.05], &mut sink);
+    assert_eq!(map.centre(), VoxelKey::new(40_000, 0, 0));
+    assert!(map.is_empty());
+    assert_eq!(sink.voxels.len(), 1);
+    assert_eq!(sink.voxels[0].0, held);
+}

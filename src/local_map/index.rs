@@ -74,6 +74,19 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         None
     }
 
+    /// Drop slot `s`, which holds `key`, from the index: its entry is the one holding s + 1 on `key`'s
+    /// probe run (what [`Self::find`] would return, without reading the slots' keys).
+    pub(super) fn unindex(&mut self, s: usize, key: VoxelKey) {
+        let mut i = Self::home(key);
+        for _ in 0..Self::TABLE {
+            match usize::from(self.entry(i)) {
+                0 => return,
+                e if e == s + 1 => return self.index_remove(i),
+                _ => i = Self::next(i),
+            }
+        }
+    }
+
     pub(super) fn index_insert(&mut self, k: VoxelKey, slot: usize) {
         let mut i = Self::home(k);
         while self.entry(i) != 0 {

@@ -183,6 +183,11 @@ pub struct LocalMap<
     centre: VoxelKey,
     /// Whether the last window move left a voxel outside the window (its eviction was refused).
     stranded: bool,
+    /// While `stranded`: how far the centre moved (largest axis, voxels; at most 2¹⁵) since a move last
+    /// left nothing outside. Every held key lies within radius + drift of the centre on each axis (a voxel
+    /// enters only inside the window), so a move whose eviction is refused need not read the keys for one
+    /// leaving the wrap range while radius + drift + the move stays below 2¹⁵ (see `window`).
+    drift: u16,
     radius: i32,
     /// Scale of int8 features (y = scale · code); 0 = none set (int8 points are refused).
     int8_scale: f32,
@@ -239,6 +244,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         scratch: ObsStats::EMPTY,
         centre: VoxelKey::new(0, 0, 0),
         stranded: false,
+        drift: 0,
         radius: 0,
         int8_scale: 0.0,
         int8_fix: Int8Fix::NONE,

@@ -48,16 +48,18 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         if sink.wants_stored() {
             return self.evict_stored(s, sink);
         }
-        let Some(&slot) = self.slots.get(s) else {
+        // The few fields the eviction needs, not the 116-byte slot.
+        let Some((w, residency, hot)) = self.slots.get(s).map(|v| (v.key, v.residency, v.hot))
+        else {
             return false;
         };
-        let key = unwrap(slot.key, self.centre);
+        let key = unwrap(w, self.centre);
         let stamp = self.gather_slot(s);
         if !self.scratch.is_empty() {
             let evicted = Evicted {
                 key,
                 obs: &self.scratch,
-                residency: slot.residency,
+                residency,
                 time: C::tick(stamp),
             };
             if sink.evict(evicted).is_err() {
@@ -66,28 +68,21 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             }
             self.counters.evicted = self.counters.evicted.saturating_add(1);
         }
-        if let Some(h) = usize::from(slot.hot).checked_sub(1) {
+        if let Some(h) = usize::from(hot).checked_sub(1) {
             self.remove_hot(h);
         }
-        if let Some((pos, _)) = self.find(key) {
-            self.index_remove(pos);
-        }
-        if let Some(freed) = self.slots.get_mut(s) {
-            *freed = Slot::empty(C::ZERO);
-        }
-        self.len -= 1;
-        self.counters.slots_written = self.counters.slots_written.saturating_add(1);
+        self.free_slot(s, key);
         true
     }
 
-    /// Empty slot `s` (holding `key`, cold) and drop it from the index.
-    #[cfg(feature = "stored-codes")]
+    /// Empty slot `s` (holding `key`, its hot entry removed) and drop it from the index. Only its flags
+    /// and hot entry are cleared: nothing reads the rest of a slot that is not occupied, and allocation
+    /// writes the whole slot (clearing all of it was a 116-byte `memclr` per eviction at D = 64).
     fn free_slot(&mut self, s: usize, key: VoxelKey) {
-        if let Some((pos, _)) = self.find(key) {
-            self.index_remove(pos);
-        }
+        self.unindex(s, key);
         if let Some(freed) = self.slots.get_mut(s) {
-            *freed = Slot::empty(C::ZERO);
+            freed.flags = 0;
+            freed.hot = 0;
         }
         self.len -= 1;
         self.counters.slots_written = self.counters.slots_written.saturating_add(1);

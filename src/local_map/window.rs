@@ -1,8 +1,10 @@
 //! The window that follows the robot: keys are stored as 3 × i16 wrapped around its centre (the window is
 //! far smaller than 2¹⁶ voxels, so the full key is recovered exactly), and a move evicts the voxels left
-//! outside in place — it reads every key but writes only the evicted slots.
+//! outside in place — it reads every key but writes only the evicted slots. A sparse sensor (an 8×8 ToF)
+//! moves the window every frame, so the scan is a tight loop of its own, and a move whose evictions the
+//! sink refuses reads no more keys than it must (see `out_of_range`).
 
-use super::{LocalMap, OCCUPIED};
+use super::{LocalMap, Slot, OCCUPIED};
 use crate::forget::MapClock;
 use crate::key::VoxelKey;
 use crate::sink::EvictionSink;
@@ -64,9 +66,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     /// Re-centre the window on a map-frame position and evict the voxels now outside it. Returns the number
     /// evicted. Refused evictions stay (counted); if one of them would fall out of the key wrap range the
     /// centre does not move this time.
-    // Out of line on Arm: inlined into a firmware's loop, its scan kept its values on the stack there
-    // (≈ 55 instructions a slot on the M4F). Inlined on riscv32imac, whose minimal build has no flash for
-    // the call's copy (+ 580 B).
+    // Out of line on Arm (inlined into a firmware's loop, it kept its values on the stack there). Inlined
+    // on riscv32imac, whose minimal build has no flash for the call's copy (+ 250 B).
     #[cfg_attr(target_arch = "arm", inline(never))]
     pub fn move_window<S: EvictionSink<D>>(&mut self, position: [f32; 3], sink: &mut S) -> usize {
         let Ok(new_centre) = VoxelKey::from_position(position, self.lut.inv_voxel_size()) else {
@@ -78,77 +79,140 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // eviction: nothing can be outside. (A 64-point ToF frame would otherwise read every key.)
             return 0;
         }
-        // A slot's offset from the new centre straight from its wrapped key: (w − c₀) as i16 + (c₀ − c₁) per
-        // axis; the full key is unwrapped only for a voxel that leaves (`leave`, out of line, so the scan
-        // keeps its few values in registers). A move reads every key — an 8×8 ToF moves every 64 points —
-        // and unwrapping each key with the 64-bit distance cost ≈ 55 instructions a slot on the M4F. Every
-        // held key is within 2¹⁵ of the old centre, so an axis moved by 2¹⁶ or more leaves all of them
-        // more than 2¹⁵ > r away: the offset is clamped there, and i32 never overflows.
-        let offset = |o: i32, n: i32| {
-            let off = (i64::from(o) - i64::from(n)).clamp(-(1 << 16), 1 << 16) as i32;
-            (o as i16, off)
-        };
-        let [(cx, ox), (cy, oy), (cz, oz)] = [
-            offset(old_centre.x, new_centre.x),
-            offset(old_centre.y, new_centre.y),
-            offset(old_centre.z, new_centre.z),
-        ];
-        let r = self.radius.unsigned_abs();
-        let (mut evicted, mut stranded, mut keep_centre) = (0, false, false);
-        for s in 0..CAP {
-            let Some(slot) = self.slots.get(s) else {
-                break;
-            };
-            if slot.flags & OCCUPIED == 0 {
+        let shift = Shift::new(old_centre, new_centre, self.radius);
+        let (mut evicted, mut refused, mut keep_centre) = (0, false, false);
+        let mut from = 0;
+        while let Some(i) = shift.next_beyond(self.slots.get(from..).unwrap_or_default()) {
+            let s = from + i;
+            from = s + 1;
+            if self.leave(s, sink) {
+                evicted += 1;
                 continue;
             }
-            let w = slot.key;
-            let d = |w: i16, c: i16, off: i32| (i32::from(w.wrapping_sub(c)) + off).unsigned_abs();
-            let (dx, dy, dz) = (d(w[0], cx, ox), d(w[1], cy, oy), d(w[2], cz, oz));
-            if dx <= r && dy <= r && dz <= r && dx * dx + dy * dy + dz * dz <= r * r {
-                continue;
-            }
-            match self.leave(s, old_centre, new_centre, stranded, sink) {
-                Ok(()) => evicted += 1,
-                Err(wrap_unsafe) => {
-                    stranded = true;
-                    keep_centre |= wrap_unsafe;
-                }
-            }
+            // It stays, and so do the rest left outside: nothing drains the sink in between, so it refuses
+            // them too (they are not gathered for nothing — on a link-bound 8×8 ToF run a move would
+            // re-offer every voxel left outside, each decoded first).
+            refused = true;
+            keep_centre = self.out_of_range(&shift, s);
+            break;
         }
         // Keys are stored wrapped: any centre within the wrap range unwraps them to the same full keys, so
         // moving the centre rewrites nothing.
         if !keep_centre {
             self.centre = new_centre;
         }
-        self.stranded = stranded;
+        self.stranded = refused;
         evicted
     }
 
-    /// Slot `s` left the window moving from `old_centre` to `new_centre`: evict it, unless the sink has
-    /// already refused one in this move (`refused`: it refuses the rest too, nothing drains it in between,
-    /// so the voxel stays without being gathered for nothing — on a link-bound 8×8 ToF run a move
-    /// re-offered every voxel left outside, each decoded first: 5,148 refusals). `Err` when it stays, with
-    /// whether its key would fall out of the wrap range of the new centre.
+    /// A move's eviction was refused at slot `first`: whether a held voxel from there on is out of the wrap
+    /// range of the new centre (such a voxel is beyond r: left outside), so that the centre must not move.
+    /// Every held key lies within r + drift of the old centre on each axis (see `drift`), so within
+    /// r + drift + the move's reach (its largest axis or more) of the new one: below 2¹⁵ none can be, and
+    /// no key is read — the common case, a link-bound sensor whose moves are refused one after another
+    /// (reading the rest of the keys after each refusal cost ≈ 3 M instructions on the 8×8 ToF, a third
+    /// of its moves'). If the centre moves, the bound grows by the move (capped: every held key is within
+    /// the range). Out of line: riscv32imac's minimal build has room for this loop only once.
+    #[cold]
+    #[inline(never)]
+    fn out_of_range(&mut self, shift: &Shift, first: usize) -> bool {
+        // After a move that left nothing outside, every held voxel lies inside the window.
+        let drift = if self.stranded {
+            u32::from(self.drift)
+        } else {
+            0
+        } + shift.reach();
+        let out = self.radius.unsigned_abs() + drift >= 1 << 15
+            && self
+                .slots
+                .iter()
+                .skip(first)
+                .any(|slot| slot.flags & OCCUPIED != 0 && shift.out_of_wrap_range(slot.key));
+        if !out {
+            self.drift = drift.min(1 << 15) as u16;
+        }
+        out
+    }
+
+    /// Slot `s` left the window: hand it to the sink. False if the sink refused it (it stays).
     #[cfg_attr(target_arch = "arm", cold, inline(never))]
     #[cfg_attr(not(target_arch = "arm"), inline(always))]
-    fn leave<S: EvictionSink<D>>(
-        &mut self,
-        s: usize,
-        old_centre: VoxelKey,
-        new_centre: VoxelKey,
-        refused: bool,
-        sink: &mut S,
-    ) -> Result<(), bool> {
-        if !refused && self.evict_slot(s, sink) {
-            return Ok(());
-        }
-        let key = self
-            .slots
-            .get(s)
-            .map_or(new_centre, |slot| unwrap(slot.key, old_centre));
-        Err(!Self::wrap_safe(key, new_centre))
+    fn leave<S: EvictionSink<D>>(&mut self, s: usize, sink: &mut S) -> bool {
+        self.evict_slot(s, sink)
     }
+}
+
+/// A window move from the old centre c₀ to the new one c₁, as the scan over the held keys uses it: a slot's
+/// offset from c₁ straight from its wrapped key, (w − c₀) as i16 + (c₀ − c₁) per axis, never unwrapped.
+/// Every held key is within 2¹⁵ of c₀, so an axis moved by 2¹⁷ or more leaves all of them more than
+/// 2¹⁶ > r away, out of the wrap range too: the shift is clamped there, and i32 never overflows.
+struct Shift {
+    old: [i16; 3],
+    by: [i32; 3],
+    r2: u32,
+}
+
+impl Shift {
+    #[inline(always)]
+    fn new(old: VoxelKey, new: VoxelKey, radius: i32) -> Self {
+        // Centres are keys of positions, within ±2³⁰ (`KEY_LIMIT`): c₀ − c₁ fits i32.
+        let by = |o: i32, n: i32| o.wrapping_sub(n).clamp(-(1 << 17), (1 << 17) - 1);
+        Self {
+            old: wrap(old),
+            by: [by(old.x, new.x), by(old.y, new.y), by(old.z, new.z)],
+            r2: radius.unsigned_abs().pow(2),
+        }
+    }
+
+    /// How far the move went: the sum of its axes in voxels (each clamped at 2¹⁷), at least its largest.
+    #[inline(always)]
+    fn reach(&self) -> u32 {
+        self.by.iter().map(|b| b.unsigned_abs()).sum()
+    }
+
+    /// Whether a held wrapped key is out of the wrap range of the new centre: an axis offset beyond
+    /// ±(2¹⁵ − 1), as [`LocalMap::wrap_safe`] (the offset is exact, or clamped beyond 2¹⁶ where the true
+    /// one is), tested as one unsigned compare an axis.
+    #[inline(always)]
+    fn out_of_wrap_range(&self, w: [i16; 3]) -> bool {
+        const SAFE: i32 = (1 << 15) - 1;
+        self.offset(w)
+            .iter()
+            .any(|&d| (d + SAFE) as u32 > 2 * SAFE as u32)
+    }
+
+    /// The offset of a wrapped key from the new centre (each axis exact, or clamped beyond 2¹⁶).
+    #[inline(always)]
+    fn offset(&self, w: [i16; 3]) -> [i32; 3] {
+        let d = |a: usize| i32::from(w[a].wrapping_sub(self.old[a])) + self.by[a];
+        [d(0), d(1), d(2)]
+    }
+
+    /// The first held voxel of `slots` beyond the radius from the new centre. A move reads every key — an
+    /// 8×8 ToF moves every 64 points — so this loop is a function of its own on Arm, over a slice, with
+    /// nothing but the centre, the shift and r² live: ≈ 24 instructions a held slot on the M4F (inside
+    /// the move, with the eviction's values around it, it spilled them to the stack: ≈ 45).
+    #[cfg_attr(target_arch = "arm", inline(never))]
+    fn next_beyond<const D: usize, const P: usize, T: Copy>(
+        &self,
+        slots: &[Slot<D, P, T>],
+    ) -> Option<usize> {
+        slots
+            .iter()
+            .position(|slot| slot.flags & OCCUPIED != 0 && beyond(self.offset(slot.key), self.r2))
+    }
+}
+
+/// Whether offset `d` from the centre (each |d| < 2¹⁸) lies farther than r (r² = `r2` < 2²⁸) in 32 bits:
+/// each axis saturated to i16 first — an axis saturated is beyond r ≤ [`super::MAX_WINDOW_VOXELS`] on its
+/// own, and three squares of at most 2³⁰ stay below 2³², so one test, no branch per axis.
+#[inline(always)]
+fn beyond(d: [i32; 3], r2: u32) -> bool {
+    let sq = |d: i32| {
+        let d = d.clamp(i32::from(i16::MIN), i32::from(i16::MAX));
+        (d * d) as u32
+    };
+    sq(d[0]) + sq(d[1]) + sq(d[2]) > r2
 }
 
 #[cfg(test)]
