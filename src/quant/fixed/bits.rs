@@ -204,7 +204,9 @@ pub(super) fn code_at(data: &[u8], width: u32, i: usize) -> u32 {
     ((lo | hi << 8) >> (bit % 8)) & ((1 << width) - 1)
 }
 
-/// Write code `i` into a zeroed section in [`super::super::pack`]'s layout.
+/// Write code `i` into a zeroed section in [`super::super::pack`]'s layout (the build without the sparse
+/// path: `pack_codes` is its faster, larger replacement).
+#[cfg(not(feature = "sparse-cooling"))]
 #[inline(always)]
 pub(super) fn set_code(data: &mut [u8], width: u32, i: usize, code: u8) {
     let bit = i * width as usize;

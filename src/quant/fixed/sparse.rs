@@ -60,17 +60,17 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         if r >= 1 << 24 {
             return None;
         }
+        // Built in place (`from_fn`: no zeroing first, which is a library call on these MCUs).
+        let mut d = 0;
+        let mu_codes: [u8; D] = core::array::from_fn(|i| {
+            d = if i % 2 == 0 { dither.next() } else { d >> 16 };
+            let u = (sums.sum(i).wrapping_mul(r as i32) + (1 << 9)) >> 10;
+            let q = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
+            q as u8 & ((1 << MU_BITS) - 1) as u8
+        });
         let mut codes = [0u8; P];
         let (mu_out, _) = codes.split_at_mut(super::super::section_len(D, MU_BITS));
-        let mut mu_w = CodeWriter::new(mu_out);
-        let mut d = 0;
-        sums.for_each_dim(|i, sum, _| {
-            d = if i % 2 == 0 { dither.next() } else { d >> 16 };
-            let u = (sum.wrapping_mul(r as i32) + (1 << 9)) >> 10;
-            let q = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
-            mu_w.put(MU_BITS, q as u32 & ((1 << MU_BITS) - 1));
-        });
-        mu_w.finish();
+        pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
         Some(Self {
             count: 1.0,
             mu_scale,
@@ -157,20 +157,19 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let q_at = |i: usize| i32::from((qs.get(i).copied().unwrap_or(0) << 1) as i8 >> 1);
 
         // ---- means: byte 0 of each dimension's 16 dither bits.
-        let mut mu_codes = [0u8; D];
         let mut max_u = 0u32;
         let mut dith = dither.clone();
         let mut d = 0;
-        sums.for_each_dim(|i, sum, _| {
+        // The arrays below built in place (`from_fn`: no zeroing first, which is a library call on these
+        // MCUs: ≈ 1 instruction a byte).
+        let mu_codes: [u8; D] = core::array::from_fn(|i| {
             d = if i % 2 == 0 { dith.next() } else { d >> 16 };
-            let q = q_at(i);
+            let (sum, q) = (sums.sum(i), q_at(i));
             let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
             let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
             max_u = max_u.max(u.unsigned_abs());
             let code = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
-            if let Some(c) = mu_codes.get_mut(i) {
-                *c = code as u8 & ((1 << MU_BITS) - 1) as u8;
-            }
+            code as u8 & ((1 << MU_BITS) - 1) as u8
         });
         // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
         // on the fine grid, as `reencode_fine`).
@@ -181,30 +180,31 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
 
         // ---- what the new points add to each scatter, in units.
-        let mut adds = [0u32; D];
-        sums.for_each_dim(|i, sum, sq| {
-            let q = q_at(i);
+        let adds: [u32; D] = core::array::from_fn(|i| {
+            let (sum, q) = (sums.sum(i), q_at(i));
             let y =
                 ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
-            let mut s = shl_sat(mul_q16(y.wrapping_mul(y) as u32, w), wsh);
+            let s = shl_sat(mul_q16(y.wrapping_mul(y) as u32, w), wsh);
             if n1 > 1 {
-                s = s.saturating_add(shl_sat(mul_q16(scatter_numerator(n1, sum, sq), v), vsh));
-            }
-            if let Some(a) = adds.get_mut(i) {
-                *a = s;
+                let sq = sums.square(i);
+                s.saturating_add(shl_sat(mul_q16(scatter_numerator(n1, sum, sq), v), vsh))
+            } else {
+                s
             }
         });
 
         // ---- the keys. Their values from the base up: four from the general path's conversion, the rest
         // by halving (an octave per 4 keys).
         let base_old = u32::from(self.psi_base);
-        let mut table = [0u32; KEYS];
-        for c in (0..KEYS).rev() {
-            table[c] = match table.get(c + 4) {
-                Some(&t) => t.div_ceil(2),
-                None => ctx.old_units(c as u32 + base_old),
-            };
-        }
+        // The top four keys' values; below them each is its octave's above halved, rounded up: k halvings
+        // at once, ⌈t/2^k⌉ (the same as one at a time).
+        let tops: [u32; 4] =
+            core::array::from_fn(|j| ctx.old_units((KEYS - 4 + j) as u32 + base_old));
+        let table: [u32; KEYS] = core::array::from_fn(|c| {
+            let k = (KEYS - 1 - c) / 4;
+            let t = tops.get(c + 4 * k + 4 - KEYS).copied().unwrap_or(0);
+            (t + (1 << k) - 1) >> k
+        });
         if table[KEYS - 1] >= 1 << 30 {
             return None; // saturated: the table does not reach
         }
