@@ -243,8 +243,42 @@ pub(super) fn mul_q16(x: u32, w: u32) -> u32 {
 }
 
 #[cfg(feature = "sparse-cooling")]
-/// `v · 2^s`: saturated to `u32::MAX` when shifting left, truncated when shifting right.
-#[inline(always)]
+/// `v · 2^s` (saturated to `u32::MAX` when shifting left, truncated when shifting right) by a shift fixed for
+/// a loop, its direction decided once: `v >> r`, then `<< l` saturated
+/// (one of them 0; no branch on the sign per value). The same as `shl_sat` for s ≤ 31 (the sparse merge's
+/// shifts are ≤ 15).
+#[derive(Clone, Copy)]
+pub(super) struct Shift {
+    l: u32,
+    r: u32,
+    lim: u32,
+}
+
+#[cfg(feature = "sparse-cooling")]
+impl Shift {
+    pub(super) fn new(s: i32) -> Self {
+        let l = s.clamp(0, 31) as u32;
+        Self {
+            l,
+            r: s.min(0).unsigned_abs().min(31),
+            lim: u32::MAX >> l,
+        }
+    }
+
+    #[inline(always)]
+    pub(super) fn apply(self, v: u32) -> u32 {
+        let v = v >> self.r;
+        if v > self.lim {
+            u32::MAX
+        } else {
+            v << self.l
+        }
+    }
+}
+
+#[cfg(all(feature = "sparse-cooling", test))]
+/// `v · 2^s`: saturated to `u32::MAX` when shifting left, truncated when shifting right, the sign decided
+/// per value (what [`Shift`] replaced; its tests' reference).
 pub(super) fn shl_sat(v: u32, s: i32) -> u32 {
     if s >= 0 {
         let s = s as u32;

@@ -180,14 +180,15 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
 
         // ---- what the new points add to each scatter, in units.
+        let (by_w, by_v) = (Shift::new(wsh), Shift::new(vsh));
         let adds: [u32; D] = core::array::from_fn(|i| {
             let (sum, q) = (sums.sum(i), q_at(i));
             let y =
                 ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
-            let s = shl_sat(mul_q16(y.wrapping_mul(y) as u32, w), wsh);
+            let s = by_w.apply(mul_q16(y.wrapping_mul(y) as u32, w));
             if n1 > 1 {
                 let sq = sums.square(i);
-                s.saturating_add(shl_sat(mul_q16(scatter_numerator(n1, sum, sq), v), vsh))
+                s.saturating_add(by_v.apply(mul_q16(scatter_numerator(n1, sum, sq), v)))
             } else {
                 s
             }
@@ -213,7 +214,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let mut d = 0;
         for (i, (k, &add)) in keys.iter_mut().zip(&adds).enumerate() {
             d = if i % 2 == 0 { dith.next() } else { d >> 16 };
-            let mut key = usize::from(*k);
+            // A 5-bit code: the mask is no change, but tells the compiler the table holds it.
+            let mut key = usize::from(*k) & PSI_CODE_MAX as usize;
             let mut lo = table.get(key).copied().unwrap_or(u32::MAX);
             let s = add.saturating_add(lo);
             // Up from the old key (S only grows) to the one whose step holds S.

@@ -480,3 +480,19 @@ fn codes_unpack_and_pack_eight_at_a_time_as_one_at_a_time() {
         }
     }
 }
+
+/// The loop-invariant shift of the sparse merge is the per-value one it replaced, for every shift up to 31.
+#[cfg(feature = "sparse-cooling")]
+#[test]
+fn the_fixed_shift_is_the_saturating_shift() {
+    let mut rng = Rng(0x5417_F7ED);
+    for s in -40..=31 {
+        let shift = Shift::new(s);
+        for v in [0, 1, 2, 0xFFFF, 0x8000_0000, u32::MAX]
+            .into_iter()
+            .chain((0..200).map(|_| rng.next() >> (rng.next() % 32)))
+        {
+            assert_eq!(shift.apply(v), shl_sat(v, s), "v {v} s {s}");
+        }
+    }
+}
