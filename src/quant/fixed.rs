@@ -360,6 +360,24 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // the products. The test stays in the loop: hoisted out of it (the merged array built through a
         // branch) it grew both targets' stacks by 0.5–1 KiB and cost riscv32imac's ToF 324 a point.
         let lone = n0 == 0 && n1 == 1;
+        // The old codes: on v6-M with the sparse path linked, unpacked eight at a time
+        // (`bits::unpack_codes`; a packed read a code cost an M0 ≈ 12 instructions a section: ToF 12,402 →
+        // 12,124 instructions a point); else read one at a time (riscv32imac: unpacked, +14 a point).
+        #[cfg(all(feature = "sparse-cooling", target_abi = "eabi"))]
+        let (mu_code, psi_code) = {
+            let (mut qs, mut ks) = ([0u8; D], [0u8; D]);
+            unpack_codes::<{ MU_BITS as usize }>(mu_part, &mut qs);
+            unpack_codes::<{ super::PSI_BITS as usize }>(psi_part, &mut ks);
+            (
+                move |i: usize| u32::from(qs.get(i).copied().unwrap_or(0)),
+                move |i: usize| u32::from(ks.get(i).copied().unwrap_or(0)),
+            )
+        };
+        #[cfg(not(all(feature = "sparse-cooling", target_abi = "eabi")))]
+        let (mu_code, psi_code) = (
+            |i: usize| code_at(mu_part, MU_BITS, i),
+            |i: usize| code_at(psi_part, super::PSI_BITS, i),
+        );
         let merged: [(i32, u32); D] = core::array::from_fn(|i| {
             let (sum, sq) = (sums.sum(i), sums.square(i));
             if lone {
@@ -367,12 +385,9 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 max_abs = max_abs.max(m.unsigned_abs());
                 return (m, 0);
             }
-            let (m0, m, x) = merged_mean(code_at(mu_part, MU_BITS, i), sigma, sum, n1, rn);
+            let (m0, m, x) = merged_mean(mu_code(i), sigma, sum, n1, rn);
             max_abs = max_abs.max(m.unsigned_abs());
-            let old = old_units
-                .get(code_at(psi_part, super::PSI_BITS, i) as usize)
-                .copied()
-                .unwrap_or(0);
+            let old = old_units.get(psi_code(i) as usize).copied().unwrap_or(0);
             let b = merged_scatter_bits(&ctx, old, sum, sq, m0, m, x);
             psi_max_bits = psi_max_bits.max(b);
             (m, b)

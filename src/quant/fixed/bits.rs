@@ -195,7 +195,9 @@ pub(super) fn top16(v: u32) -> (u32, i32) {
 }
 
 /// Code `i` of a section packed by [`super::super::pack`] (`width` ≤ 8 bits), read on its own: the loops here stay
-/// rolled (small code) instead of unpacking 8 codes at a time.
+/// rolled (small code) instead of unpacking 8 codes at a time (v6-M with the sparse path linked unpacks:
+/// `unpack_codes`).
+#[cfg(not(all(feature = "sparse-cooling", target_abi = "eabi")))]
 #[inline(always)]
 pub(super) fn code_at(data: &[u8], width: u32, i: usize) -> u32 {
     let bit = i * width as usize;
