@@ -100,7 +100,10 @@ fn run(name: &str) {
     let mut once_dither = Dither::new(7);
     let (mut once, mut visit, mut point) = (Vec::new(), Vec::new(), Vec::new());
     let mut points_per_voxel = Vec::new();
-    for (k, truth) in &exact {
+    // In key order: the once-encoding's dither is drawn voxel by voxel, so the order must not be the hash's.
+    let mut keys: Vec<VoxelKey> = exact.keys().copied().collect();
+    keys.sort_by_key(|k| k.as_array());
+    for (k, truth) in keys.iter().filter_map(|k| exact.get(k).map(|t| (k, t))) {
         once.push(rel(
             &QuantVoxel::<D, P>::EMPTY
                 .reencode_fine(truth, &mut once_dither)
