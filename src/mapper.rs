@@ -131,11 +131,12 @@ impl<
         C: MapClock,
     > Mapper<D, CAP, P, QB, N, H, C>
 {
-    /// The mapper's RAM (its `static`): the map's [`LocalMap::RAM_BYTES`] (voxels, hot tier, kernel table)
-    /// plus the encoder (queue `QB`, two frame buffers of `N`, state), the acknowledgement reader and the
-    /// live-update hand, rounded to the alignment. Equals `size_of::<Self>()` (tested), so a firmware
-    /// checks its budget at compile time: `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
-    pub const RAM_BYTES: usize = (LocalMap::<D, CAP, P, H, C>::RAM_BYTES
+    /// The mapper's RAM (its `static`): the map's (voxels, hot tier, kernel table: [`LocalMap::RAM_BYTES`],
+    /// exactly its size on a 32-bit MCU) plus the encoder (queue `QB`, two frame buffers of `N`, state), the
+    /// acknowledgement reader and the live-update hand, rounded to the alignment. Equals `size_of::<Self>()`
+    /// on every target (tested), so a firmware checks its budget at compile time:
+    /// `const _: () = assert!(Robot::RAM_BYTES <= 150 * 1024);`.
+    pub const RAM_BYTES: usize = (core::mem::size_of::<LocalMap<D, CAP, P, H, C>>()
         + core::mem::size_of::<FrameEncoder<D, QB, N>>()
         + core::mem::size_of::<AckReader>()
         + core::mem::size_of::<usize>())

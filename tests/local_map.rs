@@ -79,6 +79,31 @@ fn bytes_per_voxel() {
     assert!(b < core::mem::size_of::<VoxelStats<64>>() / 3);
 }
 
+/// `RAM_BYTES` is the map's size: exactly when every part is a whole number of 8-byte words (so always on a
+/// 32-bit MCU, whose words are 4 bytes: the firmware sizes its map from it, `CAP` = budget /
+/// `BYTES_PER_VOXEL`), and within one word of it on a 64-bit host otherwise (a hot entry of D = 13 is
+/// 132 bytes, an odd `CAP`'s index half a word: the compiler packs small fields into the rest).
+#[test]
+fn ram_bytes_is_the_maps_size() {
+    use core::mem::size_of;
+    type Board = LocalMap<64, 1228, { packed_len(64) }>;
+    assert_eq!(Board::RAM_BYTES, size_of::<Board>());
+    type Even = LocalMap<13, 78, { packed_len(13) }, 4>;
+    assert_eq!(Even::RAM_BYTES, size_of::<Even>());
+    for (formula, size) in [
+        (
+            LocalMap::<13, 77, { packed_len(13) }, 5>::RAM_BYTES,
+            size_of::<LocalMap<13, 77, { packed_len(13) }, 5>>(),
+        ),
+        (
+            LocalMap::<64, 1228, { packed_len(64) }, 33>::RAM_BYTES,
+            size_of::<LocalMap<64, 1228, { packed_len(64) }, 33>>(),
+        ),
+    ] {
+        assert!(formula.abs_diff(size) <= 8, "{formula} vs {size}");
+    }
+}
+
 #[test]
 fn every_point_is_counted_once_through_pressure_and_moves() {
     let mut map = boxed::<600>(1.5);

@@ -380,7 +380,10 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
     pub const FIXED_BYTES: usize = core::mem::size_of::<LocalMap<D, 0, P, 0, C>>();
 
     /// The map's RAM: `CAP` × [`Self::BYTES_PER_VOXEL`] + `H` × [`Self::BYTES_PER_HOT_VOXEL`] +
-    /// [`Self::FIXED_BYTES`]; equals `size_of::<Self>()` (tested).
+    /// [`Self::FIXED_BYTES`]. Equals `size_of::<Self>()` on a 32-bit MCU, where every part is a whole
+    /// number of 4-byte words; on a 64-bit host a part that ends half-way through an 8-byte word (an odd
+    /// `CAP`'s index, an odd number of hot entries of some D) lets the compiler pack small fields there, and
+    /// the two can differ by one word (tested).
     pub const RAM_BYTES: usize =
         CAP * Self::BYTES_PER_VOXEL + H * Self::BYTES_PER_HOT_VOXEL + Self::FIXED_BYTES;
 }
