@@ -126,11 +126,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // pass (a sparse sensor's usual cooling).
             (Acc::Float(o), false) if !weighed && !o.is_empty() => {
                 // Not on an MCU without an FPU: its f32 cooling is soft float whatever, and flash is short.
-                let fpu = cfg!(not(any(
-                    target_abi = "eabi",
-                    all(target_arch = "riscv32", not(target_feature = "f"))
-                )));
-                if fpu && o.count == 1.0 && self.clock.forgetting().is_none() {
+                if crate::quant::HAS_FPU && o.count == 1.0 && self.clock.forgetting().is_none() {
                     self.mean_weights
                         .reencode_unscattered(&mut slot.codes, o, &mut self.dither)
                 } else {

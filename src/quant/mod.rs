@@ -41,6 +41,14 @@ macro_rules! inline_with_fpu {
     };
 }
 
+/// Whether the target has an FPU, so the f32 encoder is the fast path and worth code twice where that
+/// saves instructions (unswitched loops, inlined conversions). Without one (thumbv6m's `eabi`, riscv32
+/// without F) flash is the scarce thing and the soft float around the encoder costs far more: one path.
+pub(crate) const HAS_FPU: bool = cfg!(not(any(
+    target_abi = "eabi",
+    all(target_arch = "riscv32", not(target_feature = "f"))
+)));
+
 mod bytes;
 mod cooling;
 mod fixed;
@@ -191,11 +199,7 @@ fn unpack_into(data: &[u8], width: u32, out: &mut [f32], section: Section) {
 /// three times), anything else through `half`. One path on an MCU without an FPU (flash).
 #[inline(always)]
 fn scale_to_f32(s: f16) -> f32 {
-    #[cfg(not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )))]
-    {
+    if HAS_FPU {
         let h = u32::from(s.to_bits());
         let e = h & 0x7C00;
         if e != 0 && e != 0x7C00 {
@@ -211,11 +215,7 @@ fn scale_to_f32(s: f16) -> f32 {
 /// `half`.
 #[inline(always)]
 fn scale_from_f32(x: f32) -> f16 {
-    #[cfg(not(any(
-        target_abi = "eabi",
-        all(target_arch = "riscv32", not(target_feature = "f"))
-    )))]
-    {
+    if HAS_FPU {
         let b = x.to_bits();
         if (0x3880_0000..=0x477F_E000).contains(&b) {
             let h = (b >> 13) - (112 << 10);
@@ -357,20 +357,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let base = i32::from(psi_base);
         // Unswitched where an FPU makes this the fast path: a voxel of one point (most of a sparse sensor's
         // coolings) runs a loop with no scatter work in it at all. One copy on an MCU without one (flash).
-        #[cfg(not(any(
-            target_abi = "eabi",
-            all(target_arch = "riscv32", not(target_feature = "f"))
-        )))]
-        if scatter_codes {
-            Self::pack_codes(&mut self.codes, stats, inv, base, true, dither);
-        } else {
+        if HAS_FPU && !scatter_codes {
             Self::pack_codes(&mut self.codes, stats, inv, base, false, dither);
+        } else {
+            Self::pack_codes(&mut self.codes, stats, inv, base, scatter_codes, dither);
         }
-        #[cfg(any(
-            target_abi = "eabi",
-            all(target_arch = "riscv32", not(target_feature = "f"))
-        ))]
-        Self::pack_codes(&mut self.codes, stats, inv, base, scatter_codes, dither);
         self.count = stats.count;
         self.mu_scale = mu_scale;
         self.psi_base = psi_base;
