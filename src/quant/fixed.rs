@@ -64,6 +64,8 @@ macro_rules! per_dim_step {
 
 mod bits;
 #[cfg(feature = "sparse-cooling")]
+mod single;
+#[cfg(feature = "sparse-cooling")]
 mod sparse;
 use bits::*;
 
@@ -322,6 +324,12 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         } else {
             0
         };
+        #[cfg(feature = "sparse-cooling")]
+        if SHORT && n0 == 1 {
+            if let Some(merged) = self.merge_into_single(sums, fix, sigma, fine, dither) {
+                return merged;
+            }
+        }
 
         // ---- pass 1, per dimension: the merged mean in code steps (MEAN_FRAC fraction bits) and the merged
         // scatter. With x = Σc − n₁m₀ the merged mean is m₀ + x/n, and the new points add
