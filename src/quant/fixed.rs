@@ -314,6 +314,13 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 return first;
             }
         }
+        // A voxel of one point revisited (an 8×8 ToF's next cooling of it): `single`.
+        #[cfg(feature = "sparse-cooling")]
+        if SHORT && n0 == 1 {
+            if let Some(merged) = self.merge_into_single(sums, fix, fine, dither) {
+                return merged;
+            }
+        }
         let n = n0.saturating_add(n1).min(1 << 30);
         let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
         // The trip count hidden from the optimiser: rolled loops, ≈ 1.5 KB of code instead of ≈ 5 KB.
@@ -324,12 +331,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         } else {
             0
         };
-        #[cfg(feature = "sparse-cooling")]
-        if SHORT && n0 == 1 {
-            if let Some(merged) = self.merge_into_single(sums, fix, sigma, fine, dither) {
-                return merged;
-            }
-        }
 
         // ---- pass 1, per dimension: the merged mean in code steps (MEAN_FRAC fraction bits) and the merged
         // scatter. With x = Σc − n₁m₀ the merged mean is m₀ + x/n, and the new points add

@@ -25,8 +25,9 @@ use super::{grid, Int8Fix, MEAN_FRAC};
 use crate::obs::{scatter_numerator, CodeSums};
 use half::f16;
 
-/// Most new points this path takes (its 32-bit ranges: |y| < 2³⁰, num·n < 2²⁵).
-pub(super) const SINGLE_MAX_NEW: u32 = 8;
+/// Most new points this path takes: any [`CodeSums`] (its fraction bits f fall with n₁ so that
+/// |Σc·2^f| and |n₁m₀·2^f| stay below 2³⁰).
+pub(super) const SINGLE_MAX_NEW: u32 = crate::obs::CODE_SUMS_MAX_COUNT;
 
 /// The bits of `v` (0 for 0).
 #[inline(always)]
@@ -68,15 +69,13 @@ impl Int8Fix {
 }
 
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {
-    /// These codes, of one point on mean scale `sigma0` (code steps with [`MEAN_FRAC`] fraction bits),
-    /// merged with `sums` (at most [`SINGLE_MAX_NEW`] points) of scale `fix`. `None` when a range would not
+    /// These codes, of one point, merged with `sums` (at most [`SINGLE_MAX_NEW`] points) of scale `fix`. `None` when a range would not
     /// fit (a scale of 64 steps or more, more points; nothing consumed from `dither` then).
     #[inline(never)]
     pub(super) fn merge_into_single(
         &self,
         sums: &CodeSums<D>,
         fix: &Int8Fix,
-        sigma0: i32,
         fine: bool,
         dither: &mut Dither,
     ) -> Option<Self> {
@@ -85,8 +84,11 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             return None;
         }
         let n = n1 + 1;
-        // σ₀·2^f < 2²⁰: |n₁·m₀| < 2²⁹ and |Σc·2^f| ≤ 2³⁰, so y fits an i32 (|q·σ₀·2^(f+5)| < 2³¹).
+        // σ₀·2^f < 2^(20 − e) with e = bits(n₁) − 3 (≥ 0): |n₁·m₀|·2^f < 2²⁹ and |Σc|·2^f ≤ 2³⁰, so y
+        // fits an i32 (and |q·σ₀·2^(f+5)| < 2³¹).
         let (sig_fine, f) = fix.steps_fine(self.mu_scale)?;
+        let e = (bits_of(n1) - 3).max(0) as u32;
+        let (sig_fine, f) = (round_shr(sig_fine, e), f - e);
         let mut qs = [0u8; D];
         let (mu_in, _) = self.codes.split_at(super::super::section_len(D, MU_BITS));
         unpack_codes::<{ MU_BITS as usize }>(mu_in, &mut qs);
@@ -107,32 +109,35 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             (x, y)
         });
 
-        // ---- the mean's scale, by the general merge's rules.
-        let to_mean_frac = 32 + f - MEAN_FRAC as u32;
-        let max_abs = shr_sat32(
-            mul32(max_x, recip(n)) + (1 << (to_mean_frac - 1)),
-            to_mean_frac,
-        )
-        .min(1 << 24) as i32;
+        // ---- the mean's scale, by the general merge's rules (kept while n·max|m| ≤ n·σ₀·q_max and
+        // reaches a quarter of it, 1/1.25 on the fine grid), compared at 2^−(f+5) (σ₀ in steps with 14
+        // fraction bits is 5 bits wide for a mean of a tenth of a step: the general merge's flaw).
         let (within, headroom) = grid(fine);
-        let qmax = MU_QMAX;
-        let keep = sigma0 > 0
-            && max_abs <= sigma0.saturating_mul(qmax)
-            && max_abs.saturating_mul(within.0) >= sigma0.saturating_mul(qmax * within.1);
-        let (mu_scale, sigma) = if keep {
-            (self.mu_scale, sigma0)
+        let lhs = u64::from(max_x) << SIGMA_EXTRA;
+        let rhs = mul32(n * MU_QMAX as u32, sig_fine as u32);
+        let keep = sig_fine > 0 && lhs <= rhs && lhs * within.0 as u64 >= rhs * within.1 as u64;
+        let (mu_scale, (sig, fs)) = if keep {
+            (self.mu_scale, (sig_fine, f))
         } else {
-            fix.fresh_scale(max_abs, headroom)
+            let to_mean_frac = 32 + f - MEAN_FRAC as u32;
+            let max_abs = shr_sat32(
+                mul32(max_x, recip(n)) + (1 << (to_mean_frac - 1)),
+                to_mean_frac,
+            )
+            .min(1 << 24) as i32;
+            let (s, _) = fix.fresh_scale(max_abs, headroom);
+            (s, fix.steps_fine(s)?)
         };
 
         // ---- the mean code in 1/256 of a step: x/(nσ)·2⁸ = x'·t / 2^rs with x' = x/2^xs < 2¹⁵ and
-        // t = (2³¹ − 1)/(nσ)₁₆ < 2¹⁶ (nσ ≈ (nσ)₁₆ · 2^de, 16 bits of it): a 32-bit product.
+        // t = (2³¹ − 1)/(nσ)₁₆ < 2¹⁶ (nσ ≈ (nσ)₁₆ · 2^de, its top 16 bits): a 32-bit product.
         let xs = (bits_of(max_x) - 15).max(0) as u32;
-        let (r_ns, rs) = if sigma > 0 {
-            let (dt, de) = top16(n.wrapping_mul(sigma as u32));
+        let (r_ns, rs) = if sig > 0 {
+            let (st, se) = top16(sig as u32);
+            let (dt, de) = top16(n * st);
             (
                 (i32::MAX as u32) / dt,
-                23 + de - xs as i32 + (f as i32 - MEAN_FRAC),
+                18 + de + se - xs as i32 + f as i32 - fs as i32,
             )
         } else {
             (0, 1)
@@ -145,14 +150,15 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         // ---- the scatter: T = num·n·2^(2f − 2ys) + (y/2^ys)², ys chosen so both terms are < 2³⁰; its value
         // T · 2^(2ys − 2f) · s²/(n₁n). The constant as a 16-bit mantissa k and exponent ke.
         let f = f as i32;
+        // num·n with the numerator first cut by 2^r so the product fits: ≤ 2³¹ · 2⁸ from 255 points.
+        let r = (bits_of(max_num) + bits_of(n) - 31).max(0);
         let mut ys = (bits_of(max_y) - 15).max(0);
-        let num_n = max_num.wrapping_mul(n);
         if n1 > 1 {
-            ys = ys.max((bits_of(num_n) + 2 * f - 29) / 2);
+            ys = ys.max((bits_of((max_num >> r) * n) + r + 2 * f - 29) / 2);
         }
-        let num_sh = 2 * f - 2 * ys; // ≥ −4: ys ≤ 16
-        let (r, re) = top16(recip(n1 * n));
-        let (k, ke2) = top16((fix.s2.m >> 8) * r);
+        let num_sh = r + 2 * f - 2 * ys; // ≥ −14: f ≥ 9, ys ≤ 16
+        let (rnn, re) = top16(recip(n1 * n));
+        let (k, ke2) = top16((fix.s2.m >> 8) * rnn);
         let ke = ke2 + 8 + fix.s2.e + re - 32 + 2 * ys - 2 * f;
         let mut max_t = 0u32;
         for (i, (_, v)) in xy.iter_mut().enumerate() {
@@ -160,7 +166,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let mut t = y.wrapping_mul(y) as u32;
             if n1 > 1 {
                 // num again (two products) rather than kept from pass 1 (an array more on the stack).
-                let num = scatter_numerator(n1, sums.sum(i), sums.square(i)).wrapping_mul(n);
+                let num = (scatter_numerator(n1, sums.sum(i), sums.square(i)) >> r).wrapping_mul(n);
                 t = t.wrapping_add(if num_sh >= 0 {
                     num << num_sh
                 } else {
