@@ -64,7 +64,7 @@ macro_rules! per_dim_step {
 
 mod bits;
 #[cfg(feature = "sparse-cooling")]
-mod single;
+mod small;
 #[cfg(feature = "sparse-cooling")]
 mod sparse;
 use bits::*;
@@ -314,13 +314,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 return first;
             }
         }
-        // A voxel of one point revisited (an 8×8 ToF's next cooling of it): `single`.
-        #[cfg(feature = "sparse-cooling")]
-        if SHORT && n0 == 1 {
-            if let Some(merged) = self.merge_into_single(sums, fix, fine, dither) {
-                return merged;
-            }
-        }
         let n = n0.saturating_add(n1).min(1 << 30);
         let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
         // The trip count hidden from the optimiser: rolled loops, ≈ 1.5 KB of code instead of ≈ 5 KB.
@@ -345,6 +338,13 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         #[cfg(feature = "sparse-cooling")]
         if SHORT && n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
             if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, fine, dither) {
+                return merged;
+            }
+        }
+        // The rest of a young voxel's coolings (an 8×8 ToF's voxel of one point revisited, above all): `small`.
+        #[cfg(feature = "sparse-cooling")]
+        if SHORT && n0 <= small::SMALL_MAX_OLD {
+            if let Some(merged) = self.merge_small(sums, fix, n0, fine, dither) {
                 return merged;
             }
         }

@@ -512,15 +512,16 @@ fn point_codes(rng: &mut Rng, kind: u32) -> [i8; D] {
     })
 }
 
-/// A voxel of one point revisited by up to [`super::single::SINGLE_MAX_NEW`] points (the ToF's usual
-/// cooling after a first visit) takes the single-point path, which holds to the f32 path with the general
-/// merge's bounds (scale within one f16 step, mean within 1.3 code steps, scatter within one key step) on
-/// both grids, over codes at the ends of the range, tiny and zero codes, fresh and kept scales; and uses
-/// the dither stream as the general merge does.
+/// A voxel of at most [`super::small::SMALL_MAX_OLD`] points — above all one point revisited by a few (the
+/// ToF's usual cooling after a first visit), also none, a few or 255 — merged with 1 to 255 points takes
+/// the small-voxel path, which holds to the f32 path with the general merge's bounds (scale within one f16
+/// step, mean within 1.3 code steps, scatter within one key step) on both grids, over codes at the ends of
+/// the range, tiny and zero codes, fresh and kept scales; and uses the dither stream as the general merge
+/// does. The general merge's errors on the same merges are printed beside its.
 #[cfg(feature = "sparse-cooling")]
 #[test]
-fn single_point_merges_match_the_f32_path() {
-    use super::single::SINGLE_MAX_NEW;
+fn small_voxel_merges_match_the_f32_path() {
+    use super::small::{SMALL_MAX_NEW, SMALL_MAX_OLD};
     let fix = Int8Fix::new(S);
     let mut rng = Rng(0x51_6E_61_E5);
     let trials = 6000u32;
@@ -530,17 +531,39 @@ fn single_point_merges_match_the_f32_path() {
         let (mut df, mut dx) = (Dither::new(31), Dither::new(31));
         let mut checked_psi = 0;
         for trial in 0..trials {
+            // Half the trials one old point, the rest 0 to 255.
+            let n0 = if trial % 2 == 0 {
+                1
+            } else {
+                [0, 2, 3, 17, SMALL_MAX_OLD][(trial as usize / 2) % 5]
+            };
             let first = point_codes(&mut rng, trial % 6);
             let mut old_sums = CodeSums::EMPTY;
-            old_sums.add(&first);
-            let old = QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(
-                &old_sums,
-                &fix,
-                fine,
-                &mut Dither::new(trial + 1),
-            );
+            for j in 0..n0 {
+                if j == 0 {
+                    old_sums.add(&first);
+                } else {
+                    // Around the first point, by a few codes.
+                    old_sums.add(&core::array::from_fn(|d| {
+                        (i32::from(first[d]) + (rng.next() % 7) as i32 - 3).clamp(-128, 127) as i8
+                    }));
+                }
+            }
+            // As the map makes it (its first cooling) or from f32 statistics.
+            let old = if trial % 4 == 3 {
+                let mut obs = old_sums.to_obs(S);
+                obs.count = n0 as f32;
+                QuantVoxel::<D, P>::encode(&obs, &mut Dither::new(trial + 1))
+            } else {
+                QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(
+                    &old_sums,
+                    &fix,
+                    fine,
+                    &mut Dither::new(trial + 1),
+                )
+            };
             // Mostly a few points (the ToF's usual revisit), every third up to a full CodeSums.
-            let n1 = 1 + rng.next() % if trial % 3 == 0 { SINGLE_MAX_NEW } else { 8 };
+            let n1 = 1 + rng.next() % if trial % 3 == 0 { SMALL_MAX_NEW } else { 8 };
             let mut sums = CodeSums::EMPTY;
             let near = trial % 7 < 3;
             for _ in 0..n1 {
@@ -560,16 +583,30 @@ fn single_point_merges_match_the_f32_path() {
             }
             let mut dg = dx.clone();
             let got = old
-                .merge_into_single(&sums, &fix, fine, &mut dx)
+                .merge_small(&sums, &fix, n0, fine, &mut dx)
                 .unwrap_or_else(|| panic!("trial {trial}: not taken"));
             let general = old.merge_general(&sums, &fix, fine, &mut dg);
             assert_eq!(dx.clone().next(), dg.next(), "trial {trial}: the dither");
-            // The dispatch takes it.
+            // The dispatch takes it (where neither the lone point's nor the sparse path does).
             let mut dd = Dither::new(trial);
-            assert_eq!(
-                old.merge_codes_fixed(&sums, &fix, fine, &mut dd.clone()),
-                old.merge_into_single(&sums, &fix, fine, &mut dd).unwrap(),
-            );
+            let sparse = n0 >= 2
+                && n1 <= SPARSE_MAX_NEW
+                && old
+                    .merge_sparse(
+                        &sums,
+                        &ScatterUnits::new(&fix, n0, n0 + n1),
+                        n0,
+                        fix.steps_of(old.mu_scale),
+                        fine,
+                        &mut dd.clone(),
+                    )
+                    .is_some();
+            if !sparse && (n0, n1) != (0, 1) {
+                assert_eq!(
+                    old.merge_codes_fixed(&sums, &fix, fine, &mut dd.clone()),
+                    old.merge_small(&sums, &fix, n0, fine, &mut dd).unwrap(),
+                );
+            }
 
             let mut want = old.decode();
             want.merge(&sums.to_obs(S));
@@ -631,7 +668,7 @@ fn single_point_merges_match_the_f32_path() {
             );
         }
         std::println!(
-            "single-point path (fine {fine}): worst mean error {worst_mu:.3} steps (general merge {general_mu:.3}), scatter off by {worst_psi:.3} (general {general_psi:.3}) over {checked_psi} scatters"
+            "small-voxel path (fine {fine}): worst mean error {worst_mu:.3} steps (general merge {general_mu:.3}), scatter off by {worst_psi:.3} (general {general_psi:.3}) over {checked_psi} scatters"
         );
         assert!(checked_psi > 10_000);
     }
