@@ -171,6 +171,11 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                     .codes
                     .merge_codes_fixed(c, &self.int8_fix, fine, &mut self.dither)
             }
+            // A revisit of f32 points where an FPU makes the f32 cooling fast: decode, merge and the
+            // encoder's maxima in one pass (`QuantVoxel::merge_here`, the same codes bit for bit).
+            (Acc::Float(o), true) if crate::quant::HAS_FPU && !older && !weighed => slot
+                .codes
+                .merge_here(fine, o, &mut self.scratch, &mut self.dither),
             (acc, seen) if !acc.is_empty() => {
                 if seen {
                     slot.codes.decode_into(&mut self.scratch);

@@ -52,6 +52,7 @@ pub(crate) const HAS_FPU: bool = cfg!(not(any(
 mod bytes;
 mod cooling;
 mod fixed;
+mod merge;
 mod weights;
 pub use bytes::{mean_codes_len, scatter_codes_len, StoredCodes, STORED_LAYOUT};
 pub use cooling::Cooling;

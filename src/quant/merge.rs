@@ -1,0 +1,195 @@
+//! A revisited voxel's cooling in one pass: its codes decoded, merged with the hot tier's f32 statistics
+//! (Chan's formula) and the maxima the encoder needs taken, dimension by dimension, then encoded.
+//!
+//! Why: the general cooling ran four passes over the 64 dimensions — decode into a scratch set, merge into
+//! it, find the largest |mᵢ| and Sᵢ, encode — each loading and storing what the last one stored. A sparse
+//! sensor revisits most voxels a point or two at a time, so these passes are most of what its points cost
+//! on a Cortex-M4F. Here the codes are read eight dimensions at a time (constant shifts), each value merged
+//! where it lies in registers, and written once for the encoder. The arithmetic is the general path's
+//! operation for operation ([`QuantVoxel::decode_into`], [`ObsStats::merge`], the maxima of
+//! `reencode`), so the codes are the same bit for bit (test `one_pass_equals_decode_merge_encode`; the
+//! QEMU boards' streams unchanged). Only where an FPU makes the f32 cooling the fast path: elsewhere it
+//! is soft float whatever, and flash is short.
+
+use super::{section_len, Dither, QuantVoxel, MU_BITS, PSI_BITS, PSI_SHIFT};
+use crate::obs::ObsStats;
+use crate::stats::update_dim;
+
+impl<const D: usize, const P: usize> QuantVoxel<D, P> {
+    /// These codes merged with `new` and re-encoded in place (`fine`: on the weighed map's grid, as
+    /// [`Self::reencode_fine_here`]): what `decode_into(work)`, `work.merge(new)` and the re-encode give,
+    /// bit for bit. `work` is scratch (left holding the merged statistics).
+    pub(crate) fn merge_here(
+        &mut self,
+        fine: bool,
+        new: &ObsStats<D>,
+        work: &mut ObsStats<D>,
+        dither: &mut Dither,
+    ) {
+        if fine {
+            self.merge_one_pass::<true>(new, work, dither);
+        } else {
+            self.merge_one_pass::<false>(new, work, dither);
+        }
+    }
+
+    #[inline(always)]
+    fn merge_one_pass<const FINE: bool>(
+        &mut self,
+        new: &ObsStats<D>,
+        work: &mut ObsStats<D>,
+        dither: &mut Dither,
+    ) {
+        let k_bar = new.count;
+        // Nothing to merge (the merge changes nothing), or dimensions beyond whole eights (none at D = 64):
+        // the passes one by one.
+        if !(k_bar > 0.0) || !D.is_multiple_of(8) {
+            self.decode_into(work);
+            work.merge(new);
+            self.reencode_in::<FINE>(work, dither);
+            return;
+        }
+        // As `combine` (stats.rs) with k = 1: k̄ = n₁, gain = k̄/(n₀ + k̄), cross = n₀·gain; S̄ = 1·S₁.
+        let weight = self.count;
+        let total = weight + k_bar;
+        let gain = k_bar / total;
+        let cross = weight * gain;
+        let scale = super::scale_to_f32(self.mu_scale);
+        let base = u32::from(self.psi_base);
+        let (mu_part, psi_part) = self.codes.split_at(section_len(D, MU_BITS));
+        let (mu8s, _) = mu_part.as_chunks::<{ MU_BITS as usize }>();
+        let (psi8s, _) = psi_part.as_chunks::<{ PSI_BITS as usize }>();
+        let (wm8s, _) = work.mean.as_chunks_mut::<8>();
+        let (ws8s, _) = work.scatter.as_chunks_mut::<8>();
+        let (nm8s, _) = new.mean.as_chunks::<8>();
+        let (ns8s, _) = new.scatter.as_chunks::<8>();
+        let mut mean_max = 0u32;
+        let mut scatter_max = 0i32;
+        let codes = mu8s.iter().zip(psi8s);
+        let outs = wm8s.iter_mut().zip(ws8s.iter_mut());
+        let ins = nm8s.iter().zip(ns8s);
+        for (((mu8, psi8), (wm, ws)), (nm, ns)) in codes.zip(outs).zip(ins) {
+            // Unrolled by hand: every code's shift a constant (a Cortex-M4 shifts a u64 by a variable in
+            // ≈ 8 instructions; rolled, the pass cost 50 a dimension).
+            let (macc, pacc) = (le_u64(mu8), le_u64(psi8));
+            let mut dim = |j: usize| {
+                let c = ((macc >> (j as u32 * MU_BITS)) & ((1 << MU_BITS) - 1)) as u32;
+                let k = ((pacc >> (j as u32 * PSI_BITS)) & ((1 << PSI_BITS) - 1)) as u32;
+                // The decode (`unpack_into`): the sign-extended code times the scale; the key's bits.
+                let mut m = ((c << (32 - MU_BITS)) as i32 >> (32 - MU_BITS)) as f32 * scale;
+                let mut s = f32::from_bits((k + base) << PSI_SHIFT);
+                update_dim(&mut m, &mut s, gain, cross, nm[j], 1.0 * ns[j]);
+                wm[j] = m;
+                ws[j] = s;
+                // The maxima (`reencode_in`), on the bit patterns.
+                mean_max = mean_max.max(m.to_bits() & 0x7FFF_FFFF);
+                scatter_max = scatter_max.max(s.to_bits() as i32);
+            };
+            dim(0);
+            dim(1);
+            dim(2);
+            dim(3);
+            dim(4);
+            dim(5);
+            dim(6);
+            dim(7);
+        }
+        work.count = total;
+        self.encode_in::<FINE>(work, mean_max.min(f32::MAX.to_bits()), scatter_max, dither);
+    }
+}
+
+/// Up to 8 bytes as a little-endian u64 (the rest zero).
+#[inline(always)]
+fn le_u64(src: &[u8]) -> u64 {
+    let mut bytes = [0u8; 8];
+    for (b, s) in bytes.iter_mut().zip(src) {
+        *b = *s;
+    }
+    u64::from_le_bytes(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{packed_len, Dither, QuantVoxel};
+    use crate::obs::ObsStats;
+
+    const D: usize = 64;
+    const P: usize = packed_len(D);
+
+    /// A small deterministic generator for the cases.
+    fn lcg(state: &mut u32) -> f32 {
+        *state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (*state >> 8) as f32 / (1u32 << 24) as f32
+    }
+
+    fn stats(state: &mut u32, count: f32, spread: f32, scatter: f32) -> ObsStats<D> {
+        ObsStats {
+            count,
+            mean: core::array::from_fn(|_| (lcg(state) - 0.5) * spread),
+            scatter: core::array::from_fn(|_| {
+                let u = lcg(state);
+                if scatter == 0.0 || u < 0.1 {
+                    0.0
+                } else {
+                    u * scatter
+                }
+            }),
+        }
+    }
+
+    /// The one pass gives the general cooling's codes bit for bit — decode, Chan's merge, the re-encode —
+    /// on both grids, for voxels of one point and of many, new sets of one point and of many, means that
+    /// keep the scale and means that move it (up and down), and the dither state after.
+    #[test]
+    fn one_pass_equals_decode_merge_encode() {
+        let mut state = 7u32;
+        let mut cases = 0;
+        for fine in [false, true] {
+            for &(n0, spread0, scatter0) in &[
+                (1.0, 2.0, 0.0),
+                (2.0, 0.5, 0.3),
+                (17.0, 1.0, 4.0),
+                (400.0, 0.01, 1e-3),
+                (3.0, 200.0, 9e4),
+            ] {
+                for &(n1, spread1, scatter1) in &[
+                    (1.0, 2.0, 0.0),
+                    (1.0, 0.001, 0.0),
+                    (3.0, 1.0, 0.5),
+                    (50.0, 40.0, 100.0),
+                    (0.0, 1.0, 0.0),
+                ] {
+                    for seed in 1..6u32 {
+                        let old = stats(&mut state, n0, spread0, scatter0);
+                        let new = stats(&mut state, n1, spread1, scatter1);
+                        let mut dither = Dither::new(seed * 97);
+                        let start = if fine {
+                            QuantVoxel::<D, P>::EMPTY.reencode_fine(&old, &mut dither)
+                        } else {
+                            QuantVoxel::<D, P>::EMPTY.reencode(&old, &mut dither)
+                        };
+                        let (mut d_ref, mut d_one) = (dither.clone(), dither.clone());
+                        let mut merged = start.decode();
+                        merged.merge(&new);
+                        let reference = if fine {
+                            start.reencode_fine(&merged, &mut d_ref)
+                        } else {
+                            start.reencode(&merged, &mut d_ref)
+                        };
+                        let mut one = start;
+                        let mut work = ObsStats::EMPTY;
+                        one.merge_here(fine, &new, &mut work, &mut d_one);
+                        assert_eq!(one, reference, "fine {fine}, n0 {n0}, n1 {n1}, seed {seed}");
+                        assert_eq!(d_one.next(), d_ref.next(), "the same dither consumed");
+                        if n1 > 0.0 {
+                            assert_eq!(work, merged, "the merged statistics left in `work`");
+                        }
+                        cases += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(cases, 250);
+    }
+}
