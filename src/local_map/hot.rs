@@ -25,7 +25,8 @@ impl<const D: usize> Acc<D> {
 
     /// The bits of [`Self::points`], in integer operations alone: what the link compares to tell a changed
     /// hot voxel (once per cooling; on an MCU without an FPU the f32 conversion and compare were two
-    /// soft-float calls there). Bits compare as the f32 counts do: a count is never NaN or −0.
+    /// soft-float calls there: 6,788 `__aeabi_ui2f` + 6,788 `__aeabi_fcmpeq` in thumbv6m's ToF profile,
+    /// none now). Bits compare as the f32 counts do: a count is never NaN or −0.
     #[inline]
     pub(super) fn points_bits(&self) -> u32 {
         match self {

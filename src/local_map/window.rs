@@ -71,7 +71,6 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         // Every held key lies within r (+ drift while stranded) of the old centre on each axis (see
         // `drift`), so within that + the move's reach of the new one: below 2¹⁵ its offset is the
         // wrapped difference to the new centre, exactly.
-        // (Not on riscv32imac: its minimal build has no flash for a second loop, +288 B.)
         let drift = if self.stranded { self.drift } else { 0 };
         if cfg!(target_arch = "arm")
             && self.radius.unsigned_abs() + u32::from(drift) + shift.reach() < 1 << 15
@@ -147,7 +146,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 ///
 /// `near`: the new centre wrapped, when every held key is known to lie within 2¹⁵ of it on each axis —
 /// every move of a robot within its window's reach: the offset is then `w − c₁` in i16 arithmetic, exactly,
-/// and the scan needs no clamp (thumbv6m ToF: next_beyond 4.3 M → ? M instructions).
+/// and the scan needs no clamp: `PROFILE_SCENARIO=tof_f3_i8 bash boards/measure-targets.sh --profile
+/// thumbv6m` next_beyond 4.28 → 2.38 M instructions (9,216 points), `bash boards/profile-scenario.sh 5`
+/// (M4F ToF) 2.00 → 1.55 M. Arm only: riscv32imac's minimal build has no flash for the second loop (+288 B).
 struct Shift {
     old: [i16; 3],
     by: [i32; 3],
