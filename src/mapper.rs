@@ -24,6 +24,7 @@ use crate::local_map::{LocalMap, HOT_VOXELS};
 use crate::sink::Evicted;
 use nalgebra::Isometry3;
 
+mod live;
 mod robot_type;
 mod sensor_frame;
 mod setup;
@@ -264,46 +265,6 @@ impl<
     ) -> Result<TickReport, TickError<W::Error>> {
         self.encoder
             .tick(w, budget, core::iter::empty::<Evicted<'_, D>>())
-    }
-
-    /// [`Self::tick`], then live updates: up to `live_budget` of the `budget` bytes stream the held voxels
-    /// that changed since they were last streamed, in ring order over the map's slots (each gets its
-    /// turn), so a base station's map follows the robot while it works. The base station replaces a live
-    /// copy by the next one and by the final one. (A firmware that wants only final voxels calls
-    /// [`Self::tick`], and links none of this.)
-    pub fn tick_live<W: embedded_io::Write>(
-        &mut self,
-        w: &mut W,
-        budget: usize,
-        live_budget: usize,
-    ) -> Result<TickReport, TickError<W::Error>> {
-        if live_budget == 0 || self.map.is_empty() {
-            return self.tick(w, budget);
-        }
-        let hand = self.live_hand;
-        let report = self
-            .encoder
-            .tick_live(w, budget, live_budget, self.map.changed_voxels(hand));
-        self.mark_live_sent(hand, &report);
-        report
-    }
-
-    /// After a live tick from `hand`: the leading `live_sent` changed voxels from the hand were consumed,
-    /// mark them streamed and move the hand past them.
-    fn mark_live_sent<E>(&mut self, hand: usize, report: &Result<TickReport, TickError<E>>) {
-        let consumed = match report {
-            Ok(r) => r.live_sent,
-            Err(TickError::Write(_, r)) => r.live_sent,
-        };
-        let mut at = hand;
-        for _ in 0..consumed {
-            let Some(s) = self.map.next_changed(at) else {
-                break;
-            };
-            self.map.mark_streamed(s);
-            at = if s + 1 >= CAP { 0 } else { s + 1 };
-        }
-        self.live_hand = at;
     }
 
     /// Read the acknowledgements the back channel has ready (never blocking): acknowledged frames are

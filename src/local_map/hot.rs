@@ -173,10 +173,15 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                     .merge_codes_fixed(c, &self.int8_fix, fine, &mut self.dither)
             }
             // A revisit of f32 points where an FPU makes the f32 cooling fast: decode, merge and the
-            // encoder's maxima in one pass (`QuantVoxel::merge_here`, the same codes bit for bit).
-            (Acc::Float(o), true) if crate::quant::HAS_FPU && !older && !weighed => slot
-                .codes
-                .merge_here(fine, o, &mut self.scratch, &mut self.dither),
+            // encoder's maxima in one pass (`QuantVoxel::merge_here`, the same codes bit for bit). Left
+            // out by `cfg` without an FPU (build.rs), not by `HAS_FPU`: even dead, the arm moved the
+            // inliner's choices in this function and cost riscv32imac's minimal build 180 B of flash it
+            // does not have. A sparse sensor's short path (feature `sparse-cooling`, ≈ 2 KB).
+            #[cfg(all(feature = "sparse-cooling", not(latentbki_soft_float)))]
+            (Acc::Float(o), true) if !older && !weighed => {
+                slot.codes
+                    .merge_here(fine, o, &mut self.scratch, &mut self.dither)
+            }
             (acc, seen) if !acc.is_empty() => {
                 if seen {
                     slot.codes.decode_into(&mut self.scratch);

@@ -39,11 +39,21 @@ impl<
             return self.tick_async(w, budget).await;
         }
         let hand = self.live_hand;
+        #[cfg(feature = "stored-codes")]
+        if crate::sink::EvictionSink::<D>::wants_stored(&self.encoder) {
+            let live = self.map.changed_stored(hand);
+            let report = self
+                .encoder
+                .tick_live_async(w, budget, live_budget, live)
+                .await;
+            self.mark_live_sent(hand, &report, true);
+            return report;
+        }
         let report = self
             .encoder
             .tick_live_async(w, budget, live_budget, self.map.changed_voxels(hand))
             .await;
-        self.mark_live_sent(hand, &report);
+        self.mark_live_sent(hand, &report, false);
         report
     }
 

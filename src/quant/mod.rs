@@ -23,20 +23,8 @@ use half::f16;
 /// thing and the call costs little next to the soft-float work around it.
 macro_rules! inline_with_fpu {
     ($item:item) => {
-        #[cfg_attr(
-            any(
-                target_abi = "eabi",
-                all(target_arch = "riscv32", not(target_feature = "f"))
-            ),
-            inline(never)
-        )]
-        #[cfg_attr(
-            not(any(
-                target_abi = "eabi",
-                all(target_arch = "riscv32", not(target_feature = "f"))
-            )),
-            inline
-        )]
+        #[cfg_attr(latentbki_soft_float, inline(never))]
+        #[cfg_attr(not(latentbki_soft_float), inline)]
         $item
     };
 }
@@ -44,14 +32,12 @@ macro_rules! inline_with_fpu {
 /// Whether the target has an FPU, so the f32 encoder is the fast path and worth code twice where that
 /// saves instructions (unswitched loops, inlined conversions). Without one (thumbv6m's `eabi`, riscv32
 /// without F) flash is the scarce thing and the soft float around the encoder costs far more: one path.
-pub(crate) const HAS_FPU: bool = cfg!(not(any(
-    target_abi = "eabi",
-    all(target_arch = "riscv32", not(target_feature = "f"))
-)));
+pub(crate) const HAS_FPU: bool = cfg!(not(latentbki_soft_float));
 
 mod bytes;
 mod cooling;
 mod fixed;
+#[cfg(all(feature = "sparse-cooling", not(latentbki_soft_float)))]
 mod merge;
 mod weights;
 pub use bytes::{mean_codes_len, scatter_codes_len, StoredCodes, STORED_LAYOUT};
@@ -426,20 +412,14 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             // Unrolled by hand where an FPU makes this the fast path: constant shifts (−950 instructions a
             // re-encode on the M4F). Rolled on an MCU without one, where flash is scarce and the soft float
             // around it costs far more than the shifts (riscv32imac: ≈ 1 KB less).
-            #[cfg(not(any(
-                target_abi = "eabi",
-                all(target_arch = "riscv32", not(target_feature = "f"))
-            )))]
+            #[cfg(not(latentbki_soft_float))]
             {
                 pair(0, (m[0], Some(m[1])), (p[0], Some(p[1])), &mut acc);
                 pair(1, (m[2], Some(m[3])), (p[2], Some(p[3])), &mut acc);
                 pair(2, (m[4], Some(m[5])), (p[4], Some(p[5])), &mut acc);
                 pair(3, (m[6], Some(m[7])), (p[6], Some(p[7])), &mut acc);
             }
-            #[cfg(any(
-                target_abi = "eabi",
-                all(target_arch = "riscv32", not(target_feature = "f"))
-            ))]
+            #[cfg(latentbki_soft_float)]
             for ((j, m), p) in (0..4).zip(m.as_chunks::<2>().0).zip(p.as_chunks::<2>().0) {
                 pair(j, (m[0], Some(m[1])), (p[0], Some(p[1])), &mut acc);
             }

@@ -60,10 +60,13 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
 }
 
 /// Where a summary's quantized part comes from: an evicted voxel's, encoded when it was queued, or a live
-/// voxel's statistics, encoded now.
+/// voxel's statistics, encoded now, or (a session of stored codes) a live voxel's codes as its map holds
+/// them, copied now.
 pub(super) enum Codes<'a, const D: usize> {
     Queued(&'a [u8]),
     Live(&'a ObsStats<D>),
+    #[cfg(feature = "stored-codes")]
+    LiveStored(crate::quant::StoredCodes<'a>),
 }
 
 /// Append one summary — (key, residency, point count, codes) — to the frame being filled in
@@ -116,6 +119,14 @@ pub(super) fn append<const D: usize>(
         Codes::Live(obs) => match out
             .get_mut(at..)
             .map(|o| encode_codes_as(codec, obs, count, o))
+        {
+            Some(Ok(c)) => c,
+            _ => return false,
+        },
+        #[cfg(feature = "stored-codes")]
+        Codes::LiveStored(stored) => match out
+            .get_mut(at..)
+            .map(|o| crate::wire::write_stored::<D>(&stored, count, o))
         {
             Some(Ok(c)) => c,
             _ => return false,
@@ -184,6 +195,9 @@ fn append_rice<const D: usize>(
             }
             head + bits
         }
+        // Stored codes travel in sessions of stored codes, never of Rice codes.
+        #[cfg(feature = "stored-codes")]
+        Codes::LiveStored(_) => return false,
         Codes::Live(obs) => {
             let policy = crate::wire::rice::Policy::DEFAULT;
             match crate::wire::codec::encode_rice_at(codec, policy, obs, weight.class(), o, head) {

@@ -253,7 +253,7 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
 #[cfg(feature = "stored-codes")]
 impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     /// The weight a voxel's stored codes are sent with: as [`Self::weight`], from the codes' exact n.
-    fn stored_weight(&self, voxel: &EvictedStored<'_>) -> Option<Weight> {
+    pub(super) fn stored_weight(&self, voxel: &EvictedStored<'_>) -> Option<Weight> {
         let n = voxel.codes.count;
         #[cfg(feature = "forgetting")]
         if self.stamped() {
@@ -280,25 +280,42 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
     }
 }
 
-/// A voxel the encoder can stream live: a borrowed [`Evicted`] view, or a decoded [`LiveVoxel`] from the
-/// local map.
+/// A voxel the encoder can stream live: a borrowed [`Evicted`] view, a decoded [`LiveVoxel`] from the
+/// local map, or (feature `stored-codes`) a held voxel's codes as the map holds them.
 pub trait LiveItem<const D: usize> {
-    /// The voxel, borrowed.
-    fn voxel(&self) -> Evicted<'_, D>;
+    /// The voxel as statistics (`None` if it is only codes): what a session of packed or Rice codes
+    /// quantizes.
+    fn voxel(&self) -> Option<Evicted<'_, D>>;
+    /// The voxel as its map's codes: what a session of stored codes sends (`None` if it is only
+    /// statistics: such a session skips it).
+    #[cfg(feature = "stored-codes")]
+    fn stored(&self) -> Option<EvictedStored<'_>> {
+        None
+    }
 }
 
 impl<const D: usize> LiveItem<D> for Evicted<'_, D> {
-    fn voxel(&self) -> Evicted<'_, D> {
-        *self
+    fn voxel(&self) -> Option<Evicted<'_, D>> {
+        Some(*self)
     }
 }
 
 impl<const D: usize> LiveItem<D> for LiveVoxel<D> {
-    fn voxel(&self) -> Evicted<'_, D> {
-        Evicted {
+    fn voxel(&self) -> Option<Evicted<'_, D>> {
+        Some(Evicted {
             time: self.time,
             ..live(self.key, &self.obs, self.residency)
-        }
+        })
+    }
+}
+
+#[cfg(feature = "stored-codes")]
+impl<const D: usize> LiveItem<D> for EvictedStored<'_> {
+    fn voxel(&self) -> Option<Evicted<'_, D>> {
+        None
+    }
+    fn stored(&self) -> Option<EvictedStored<'_>> {
+        Some(*self)
     }
 }
 

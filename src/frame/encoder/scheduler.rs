@@ -21,6 +21,9 @@ use crate::frame::resend::ACK_WINDOW;
 use crate::frame::wire_len;
 use crate::wire::{DeltaBase, Message};
 
+/// A summary as [`append`] takes it: key, residency, weight, codes.
+type LiveSummary<'a, const D: usize> = (crate::key::VoxelKey, u32, Weight, Codes<'a, D>);
+
 /// What the pending frame (built in `scratch`, not yet written whole) is.
 pub(super) const PENDING_NONE: u8 = 0;
 pub(super) const PENDING_HEADER: u8 = 1;
@@ -272,10 +275,9 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
             }
             while limit >= smallest && count < u16::MAX {
                 let Some(item) = live.peek() else { break };
-                let v = item.voxel();
-                // Consumed either way: sent, or skipped because the decoder would refuse it.
-                if let Some(weight) = self.weight(&v) {
-                    let summary = (v.key, v.residency, weight, Codes::Live(v.obs));
+                // Consumed either way: sent, or skipped because the decoder would refuse it (or the
+                // session cannot carry it: statistics in a session of stored codes, or codes in another).
+                if let Some(summary) = self.live_summary(item) {
                     if !append(
                         &mut self.scratch,
                         &mut used,
@@ -313,6 +315,19 @@ impl<const D: usize, const QB: usize, const N: usize> FrameEncoder<D, QB, N> {
         t.live_consumed = from_live;
         t.phase = Phase::Voxels; // the next frame
         Some(Planned::Pending)
+    }
+
+    /// A live item as the summary this session sends of it, or `None` to skip it.
+    fn live_summary<'a>(&self, item: &'a impl LiveItem<D>) -> Option<LiveSummary<'a, D>> {
+        #[cfg(feature = "stored-codes")]
+        if self.config.codec.is_stored() {
+            let v = item.stored()?;
+            let weight = self.stored_weight(&v).filter(|_| !v.weighed)?;
+            return Some((v.key, v.residency, weight, Codes::LiveStored(v.codes)));
+        }
+        let v = item.voxel()?;
+        let weight = self.weight(&v)?;
+        Some((v.key, v.residency, weight, Codes::Live(v.obs)))
     }
 
     /// Account for a planned write: `ok` if every byte was written. A failed re-send stays due; a failed

@@ -63,6 +63,8 @@ struct Station {
     sessions: Sessions<2>,
     final_points: f32,
     live_summaries: u32,
+    /// The latest live copy of each voxel.
+    live: Vec<(crate::key::VoxelKey, crate::obs::ObsStats<D>)>,
 }
 
 impl Station {
@@ -72,6 +74,7 @@ impl Station {
             sessions: Sessions::new(),
             final_points: 0.0,
             live_summaries: 0,
+            live: Vec::new(),
         }
     }
     fn receive(&mut self, mut input: &[u8], back: &mut BackChannel) {
@@ -88,6 +91,10 @@ impl Station {
                                 self.final_points += s.obs.count;
                             } else {
                                 self.live_summaries += 1;
+                                match self.live.iter_mut().find(|(k, _)| *k == s.key) {
+                                    Some((_, obs)) => *obs = s.obs,
+                                    None => self.live.push((s.key, s.obs)),
+                                }
                             }
                         }
                     }
@@ -154,6 +161,87 @@ fn live_updates_show_held_voxels_and_finals_carry_every_point() {
     }
     let mut quiet = Vec::new();
     assert_eq!(robot.tick_live(&mut quiet, 2000, 400).unwrap().live_sent, 0);
+    let mut out = Vec::new();
+    robot.drain(&mut out).unwrap();
+    station.receive(&out, &mut back);
+    assert_eq!(station.final_points, 400.0);
+}
+
+/// A link of stored codes streams live updates too: each changed cold voxel's codes as the map holds
+/// them (the base station's copy is the robot's voxel bit for bit), a hot voxel's new points once it has
+/// cooled; statistics handed to such a session are skipped; the finals still carry every point once.
+#[cfg(feature = "stored-codes")]
+#[test]
+fn a_stored_code_link_streams_cold_voxels_live_as_the_map_holds_them() {
+    let mut robot = Box::new(Robot::EMPTY);
+    let mut s = setup(Resend::OFF);
+    s.codec = crate::wire::SummaryCodec::STORED;
+    robot.configure(&s).unwrap();
+    let mut station = Station::new();
+    let mut back = BackChannel::default();
+    let mut live_sent = 0;
+    // 100 voxels in view (more than the hot tier holds), the robot standing still: four looks.
+    let pose = Isometry3::identity();
+    let points: Vec<[f32; 3]> = (0..100)
+        .map(|i| {
+            [
+                0.1 * (i % 10) as f32 - 0.45,
+                0.1 * (i / 10) as f32 - 0.45,
+                0.05,
+            ]
+        })
+        .collect();
+    for f in 0..4 {
+        let features: Vec<[f32; D]> = (0..100).map(|i| [(i + f) as f32 * 0.01 - 0.3; D]).collect();
+        robot.integrate(&pose, &points, &features);
+        let mut out = Vec::new();
+        let r = robot.tick_live(&mut out, 2000, 600).unwrap();
+        assert!(r.live_bytes <= 600, "{r:?}");
+        live_sent += r.live_sent;
+        station.receive(&out, &mut back);
+    }
+    assert!(live_sent > 0 && station.live_summaries > 0);
+    for _ in 0..100 {
+        if robot.map().changed_stored(0).next().is_none() {
+            break;
+        }
+        let mut out = Vec::new();
+        robot.tick_live(&mut out, 2000, 600).unwrap();
+        station.receive(&out, &mut back);
+    }
+    assert!(robot.map().changed_stored(0).next().is_none());
+    let mut quiet = Vec::new();
+    assert_eq!(robot.tick_live(&mut quiet, 2000, 600).unwrap().live_sent, 0);
+    let hot: Vec<_> = robot.map().hot_voxels().map(|v| v.key).collect();
+    assert!(!hot.is_empty());
+    let mut cold = 0;
+    for v in robot.map().iter().filter(|v| !hot.contains(&v.key)) {
+        let copy = station
+            .live
+            .iter()
+            .find(|(k, _)| *k == v.key)
+            .map(|(_, o)| o);
+        assert_eq!(
+            copy,
+            Some(&v.obs),
+            "cold voxel {:?}: the station's copy",
+            v.key
+        );
+        cold += 1;
+    }
+    assert!(cold >= 50, "{cold} cold voxels held");
+    // A statistics-only item cannot go in a session of stored codes: skipped, nothing written.
+    let obs = crate::obs::ObsStats::<D> {
+        count: 3.0,
+        ..crate::obs::ObsStats::EMPTY
+    };
+    let item = crate::frame::live(crate::key::VoxelKey::new(1, 2, 3), &obs, 1);
+    let mut out = Vec::new();
+    let r = robot
+        .encoder
+        .tick_live(&mut out, 2000, 600, [item])
+        .unwrap();
+    assert_eq!((r.live_sent, r.live_bytes, out.len()), (1, 0, 0), "{r:?}");
     let mut out = Vec::new();
     robot.drain(&mut out).unwrap();
     station.receive(&out, &mut back);
