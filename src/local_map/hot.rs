@@ -162,6 +162,19 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                         .reencode(&mut slot.codes, o, &mut self.dither)
                 }
             }
+            // A first visit of one int8 point where an FPU makes the f32 cooling fast (a sparse sensor's
+            // usual cooling with int8 features): its mean straight from its codes, no merge, no scatter
+            // pass (`QuantVoxel::encode_lone_codes_here`, the same codes bit for bit).
+            #[cfg(all(feature = "sparse-cooling", not(latentbki_soft_float)))]
+            (Acc::Codes(c), false) if !fixed && !weighed && c.count == 1 => {
+                slot.codes.encode_lone_codes_here(
+                    fine,
+                    c,
+                    self.int8_scale,
+                    &mut self.scratch,
+                    &mut self.dither,
+                )
+            }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
             (Acc::Codes(c), _) if fixed && !older => {
