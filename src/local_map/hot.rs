@@ -2,11 +2,11 @@
 //! no decoding). A voxel is quantized only when it cools — when another voxel needs its entry — so it is
 //! re-encoded once per visit, not once per point or batch.
 
-use super::{Hot, LocalMap, CHANGED, REFERENCED};
+use super::{positive, Hot, LocalMap, CHANGED, REFERENCED};
 use crate::forget::bring_forward;
 use crate::forget::MapClock;
 use crate::key::VoxelKey;
-use crate::obs::{CodeSums, ObsStats};
+use crate::obs::{CodeSums, ObsStats, CODE_SUMS_MAX_COUNT};
 use crate::quant::Cooling;
 
 /// A hot voxel's new points: f32 features by Welford's update, int8 codes as exact integer sums (the
@@ -18,11 +18,20 @@ pub(super) enum Acc<const D: usize> {
 }
 
 impl<const D: usize> Acc<D> {
-    /// Points accumulated (what the link compares to tell a changed hot voxel).
+    /// Points accumulated.
     pub(super) fn points(&self) -> f32 {
+        f32::from_bits(self.points_bits())
+    }
+
+    /// The bits of [`Self::points`], in integer operations alone: what the link compares to tell a changed
+    /// hot voxel (once per cooling; on an MCU without an FPU the f32 conversion and compare were two
+    /// soft-float calls there: 6,788 `__aeabi_ui2f` + 6,788 `__aeabi_fcmpeq` in thumbv6m's ToF profile,
+    /// none now). Bits compare as the f32 counts do: a count is never NaN or −0.
+    #[inline]
+    pub(super) fn points_bits(&self) -> u32 {
         match self {
-            Self::Float(o) => o.count,
-            Self::Codes(c) => c.count as f32,
+            Self::Float(o) => o.count.to_bits(),
+            Self::Codes(c) => exact_f32_bits(c.count),
         }
     }
 
@@ -96,10 +105,29 @@ impl<const D: usize> Acc<D> {
     /// Whether it holds nothing.
     pub(super) fn is_empty(&self) -> bool {
         match self {
-            Self::Float(o) => o.is_empty(),
+            Self::Float(o) => !positive(o.count), // `o.is_empty()` without a float compare
             Self::Codes(c) => c.count == 0,
         }
     }
+}
+
+/// The bits of `n as f32` for `n` < 2⁹ — int8 sums hold at most [`CODE_SUMS_MAX_COUNT`] points — by integer
+/// operations alone: n·2¹⁵ shifted up until its top bit is the f32's implicit one (at most 8 steps; no
+/// `leading_zeros`, which thumbv6m and riscv32imac lack, and whose inline form cost riscv32imac's minimal
+/// build 100 B of flash it does not have).
+#[inline]
+fn exact_f32_bits(n: u32) -> u32 {
+    const _: () = assert!(CODE_SUMS_MAX_COUNT < 1 << 9);
+    if n == 0 {
+        return 0;
+    }
+    // m · 2^(e − 150), e the biased exponent, until 2²³ ≤ m < 2²⁴.
+    let (mut m, mut e) = (n << 15, 135u32);
+    while m < 1 << 23 {
+        m <<= 1;
+        e -= 1;
+    }
+    (e << 23) | (m & 0x7F_FFFF)
 }
 
 impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClock>
@@ -119,7 +147,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         // the codes fade to the hot stamp before the exact merge ([`crate::forget::Stamped::merge`]).
         let older = self.clock.forgetting().is_some() && slot.stamp != hot.stamp;
         let weighed = self.mean_weights.has_shifts();
-        match (&hot.acc, slot.codes.count > 0.0) {
+        match (&hot.acc, positive(slot.codes.count)) {
             // A first visit of f32 points: its codes are its hot statistics (no decode, no merge), unless
             // the mean is weighed first (below); on the weights' grid.
             // One point in a map that never forgets (no decay): its scatter is 0 (`set_point`), so no scatter
@@ -133,6 +161,19 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
                     self.mean_weights
                         .reencode(&mut slot.codes, o, &mut self.dither)
                 }
+            }
+            // A first visit of one int8 point where an FPU makes the f32 cooling fast (a sparse sensor's
+            // usual cooling with int8 features): its mean straight from its codes, no merge, no scatter
+            // pass (`QuantVoxel::encode_lone_codes_here`, the same codes bit for bit).
+            #[cfg(all(feature = "sparse-cooling", not(latentbki_soft_float)))]
+            (Acc::Codes(c), false) if !fixed && !weighed && c.count == 1 => {
+                slot.codes.encode_lone_codes_here(
+                    fine,
+                    c,
+                    self.int8_scale,
+                    &mut self.scratch,
+                    &mut self.dither,
+                )
             }
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
@@ -171,7 +212,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         }
         slot.hot = 0;
         slot.flags |= REFERENCED;
-        if hot.acc.points() != hot.live_sent {
+        if hot.acc.points_bits() != hot.live_sent {
             slot.flags |= CHANGED; // points the link has not streamed live yet
         }
         self.counters.cooled = self.counters.cooled.saturating_add(1);
@@ -246,7 +287,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             e.key = key;
             e.slot = s as u16;
             e.referenced = true;
-            e.live_sent = 0.0;
+            e.live_sent = 0;
             e.stamp = stamp;
         }
         if let Some(slot) = self.slots.get_mut(s) {
@@ -293,8 +334,37 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 
 #[cfg(test)]
 mod tests {
-    use super::Acc;
-    use crate::obs::ObsStats;
+    use super::{exact_f32_bits, Acc};
+    use crate::obs::{CodeSums, ObsStats};
+
+    /// The integer conversion the link's change test uses is `n as f32` to the bit for every count int8
+    /// sums can hold (and beyond); and `positive` is `> 0.0` on every non-NaN f32 a count could be.
+    #[test]
+    fn count_bits_are_the_float_ones() {
+        for n in 0..1 << 9 {
+            assert_eq!(exact_f32_bits(n), (n as f32).to_bits(), "{n}");
+        }
+        for x in [
+            0.0f32,
+            -0.0,
+            1.0,
+            0.5,
+            1e-45,
+            -1e-45,
+            3.0e38,
+            -7.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ] {
+            assert_eq!(super::positive(x), x > 0.0, "{x}");
+        }
+        let mut c = Acc::<4>::Codes(CodeSums::EMPTY);
+        for k in 0..200 {
+            assert_eq!(c.points_bits(), (k as f32).to_bits());
+            assert_eq!(c.points(), k as f32);
+            c.add_codes(&[1, -2, 3, 127], 0.5);
+        }
+    }
 
     /// A reused f32 entry is reset by its count alone: its next points must give what a fresh entry gives
     /// (the stale mean and scatter never read), and an emptied one must merge and cool as nothing.

@@ -26,7 +26,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         usize::from(slot.hot)
             .checked_sub(1)
             .and_then(|h| self.hot.get(h))
-            .is_some_and(|h| h.acc.points() != h.live_sent)
+            .is_some_and(|h| h.acc.points_bits() != h.live_sent)
     }
 
     /// The next slot at or after `from` (wrapping once around the pool) holding a changed voxel (`cold`:
@@ -78,7 +78,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             .checked_sub(1)
             .and_then(|h| self.hot.get_mut(h))
         {
-            h.live_sent = h.acc.points();
+            h.live_sent = h.acc.points_bits();
         }
     }
 }

@@ -52,6 +52,14 @@ fn hot_tile(k: VoxelKey) -> usize {
     ((k.x & 7) | (k.y & 7) << 3 | (k.z & 3) << 6) as usize
 }
 
+/// `x > 0.0` for a count (never NaN) by its bits, in integer operations alone: the sign bit makes a
+/// negative value (and −0) a negative i32, +0 is 0, and a positive f32 is a positive i32. The map tests
+/// counts once per cooling and eviction; on an MCU without an FPU the float compare is a soft-float call.
+#[inline(always)]
+fn positive(x: f32) -> bool {
+    (x.to_bits() as i32) > 0
+}
+
 /// Largest window radius in voxels: keeps every resident key within the i16 wrap range of the centre.
 pub const MAX_WINDOW_VOXELS: i32 = 16_000;
 
@@ -97,9 +105,10 @@ struct Hot<const D: usize, T: Copy> {
     key: VoxelKey,
     slot: u16,
     referenced: bool,
-    /// Its point count when it was last streamed as a live update (0: not yet): a hot voxel has changed
-    /// since if its count differs — read per tick, never written per point.
-    live_sent: f32,
+    /// The bits of its point count (f32) when it was last streamed as a live update (0: not yet): a hot
+    /// voxel has changed since if its count differs — read per tick and cooling, never written per point.
+    /// Bits, so that the test is an integer compare on an MCU without an FPU.
+    live_sent: u32,
     /// When `acc` last changed (`()` in a map that never forgets).
     stamp: T,
 }
@@ -111,7 +120,7 @@ impl<const D: usize, T: Copy> Hot<D, T> {
             key: VoxelKey::new(0, 0, 0),
             slot: 0,
             referenced: false,
-            live_sent: 0.0,
+            live_sent: 0,
             stamp,
         }
     }

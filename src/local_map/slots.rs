@@ -3,7 +3,7 @@
 //! flushing at the end of a run.
 
 use super::window::{unwrap, wrap};
-use super::{LocalMap, Slot, OCCUPIED, REFERENCED};
+use super::{positive, LocalMap, Slot, OCCUPIED, REFERENCED};
 use crate::forget::bring_forward;
 use crate::forget::MapClock;
 use crate::key::VoxelKey;
@@ -55,7 +55,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         };
         let key = unwrap(w, self.centre);
         let stamp = self.gather_slot(s);
-        if !self.scratch.is_empty() {
+        if positive(self.scratch.count) {
             let evicted = Evicted {
                 key,
                 obs: &self.scratch,
@@ -106,7 +106,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             return false;
         };
         let key = unwrap(slot.key, self.centre);
-        if slot.codes.count > 0.0 {
+        if positive(slot.codes.count) {
             let voxel = EvictedStored {
                 key,
                 codes: slot.codes.stored(),

@@ -41,25 +41,13 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         ok(k.x, centre.x) && ok(k.y, centre.y) && ok(k.z, centre.z)
     }
 
-    /// Whether a key is within the window's radius of its centre: [`VoxelKey::distance_squared`] ≤ r².
-    #[inline]
-    pub(super) fn in_window(&self, k: VoxelKey) -> bool {
-        #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
-        return {
-            // The M4F's `smull`/`smlal`: the 64-bit form is the shortest there.
-            let r = i64::from(self.radius);
-            k.distance_squared(self.centre) <= r * r
-        };
-        #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
-        return self.in_window_32(k);
-    }
-
-    /// [`Self::in_window`] in 32 bits (per point; a 64-bit product is a library call on v6-M, three
-    /// multiplies on RV32). An axis farther than r is outside at once; otherwise every |d| ≤ r ≤
+    /// Whether a key is within the window's radius of its centre: [`VoxelKey::distance_squared`] ≤ r², in
+    /// 32 bits (per point that misses the hot entries at hand; a 64-bit product is a library call on v6-M,
+    /// three multiplies on RV32, and on the M4F its `smull`/`umull` form took ≈ 36 instructions where this
+    /// takes ≈ 20). An axis farther than r is outside at once; otherwise every |d| ≤ r ≤
     /// [`super::MAX_WINDOW_VOXELS`] < 2¹⁵, so the d² sum stays below 3·2³⁰.
     #[inline]
-    #[cfg_attr(all(target_arch = "arm", target_abi = "eabihf"), allow(dead_code))]
-    pub(super) fn in_window_32(&self, k: VoxelKey) -> bool {
+    pub(super) fn in_window(&self, k: VoxelKey) -> bool {
         within(k, self.centre, self.radius)
     }
 
@@ -79,7 +67,16 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // eviction: nothing can be outside. (A 64-point ToF frame would otherwise read every key.)
             return 0;
         }
-        let shift = Shift::new(old_centre, new_centre, self.radius);
+        let mut shift = Shift::new(old_centre, new_centre, self.radius);
+        // Every held key lies within r (+ drift while stranded) of the old centre on each axis (see
+        // `drift`), so within that + the move's reach of the new one: below 2¹⁵ its offset is the
+        // wrapped difference to the new centre, exactly.
+        let drift = if self.stranded { self.drift } else { 0 };
+        if cfg!(target_arch = "arm")
+            && self.radius.unsigned_abs() + u32::from(drift) + shift.reach() < 1 << 15
+        {
+            shift.near = Some(wrap(new_centre));
+        }
         let (mut evicted, mut refused, mut keep_centre) = (0, false, false);
         let mut from = 0;
         while let Some(i) = shift.next_beyond(self.slots.get(from..).unwrap_or_default()) {
@@ -146,10 +143,17 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
 /// offset from c₁ straight from its wrapped key, (w − c₀) as i16 + (c₀ − c₁) per axis, never unwrapped.
 /// Every held key is within 2¹⁵ of c₀, so an axis moved by 2¹⁷ or more leaves all of them more than
 /// 2¹⁶ > r away, out of the wrap range too: the shift is clamped there, and i32 never overflows.
+///
+/// `near`: the new centre wrapped, when every held key is known to lie within 2¹⁵ of it on each axis —
+/// every move of a robot within its window's reach: the offset is then `w − c₁` in i16 arithmetic, exactly,
+/// and the scan needs no clamp: `PROFILE_SCENARIO=tof_f3_i8 bash boards/measure-targets.sh --profile
+/// thumbv6m` next_beyond 4.28 → 2.38 M instructions (9,216 points), `bash boards/profile-scenario.sh 5`
+/// (M4F ToF) 2.00 → 1.55 M. Arm only: riscv32imac's minimal build has no flash for the second loop (+288 B).
 struct Shift {
     old: [i16; 3],
     by: [i32; 3],
     r2: u32,
+    near: Option<[i16; 3]>,
 }
 
 impl Shift {
@@ -161,6 +165,7 @@ impl Shift {
             old: wrap(old),
             by: [by(old.x, new.x), by(old.y, new.y), by(old.z, new.z)],
             r2: radius.unsigned_abs().pow(2),
+            near: None,
         }
     }
 
@@ -197,9 +202,21 @@ impl Shift {
         &self,
         slots: &[Slot<D, P, T>],
     ) -> Option<usize> {
+        let r2 = self.r2;
+        if let Some(c) = self.near {
+            // |offset| < 2¹⁵ an axis: three squares below 3·2³⁰ fit u32.
+            let sq = |w: i16, c: i16| {
+                let d = i32::from(w.wrapping_sub(c));
+                (d * d) as u32
+            };
+            return slots.iter().position(|slot| {
+                slot.flags & OCCUPIED != 0
+                    && sq(slot.key[0], c[0]) + sq(slot.key[1], c[1]) + sq(slot.key[2], c[2]) > r2
+            });
+        }
         slots
             .iter()
-            .position(|slot| slot.flags & OCCUPIED != 0 && beyond(self.offset(slot.key), self.r2))
+            .position(|slot| slot.flags & OCCUPIED != 0 && beyond(self.offset(slot.key), r2))
     }
 }
 
@@ -218,6 +235,83 @@ fn beyond(d: [i32; 3], r2: u32) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The scan's short form (`near`: offsets as i16 differences to the new centre) finds the same slots
+    /// beyond the radius as the general one, for held keys anywhere the bound allows (within r + drift of
+    /// the old centre on each axis, the move's reach keeping the sum below 2¹⁵), centres anywhere.
+    #[test]
+    fn the_near_scan_is_the_general_one() {
+        type S = Slot<1, 1, ()>;
+        let mut seed = 0x2545_F491u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        let mut slots = [S::empty(()); 64];
+        let mut hits = 0;
+        for round in 0..4_000 {
+            let radius = [1, 3, 40, 1_000, super::super::MAX_WINDOW_VOXELS][round % 5];
+            let spare = (1 << 15) - 1 - radius as u32; // drift + reach
+            let drift = next() % (spare + 1);
+            let reach_max = spare - drift;
+            let span = |v: u32, m: u32| (v % (2 * m + 1)) as i32 - m as i32;
+            let old = VoxelKey::new(next() as i32 >> 2, next() as i32 >> 2, next() as i32 >> 2);
+            let (bx, by) = (span(next(), reach_max / 2), span(next(), reach_max / 2));
+            let bz = span(next(), reach_max - bx.unsigned_abs() - by.unsigned_abs());
+            let new = VoxelKey::new(old.x + bx, old.y + by, old.z + bz);
+            let near_old = radius as u32 + drift;
+            for slot in slots.iter_mut() {
+                // Mostly close to the new centre's sphere, so that both answers occur.
+                let m = if next() % 2 == 0 {
+                    near_old
+                } else {
+                    radius as u32 + 2
+                };
+                let k = VoxelKey::new(
+                    old.x + span(next(), m),
+                    old.y + span(next(), m),
+                    old.z + span(next(), m),
+                );
+                let k = if m == near_old {
+                    k
+                } else {
+                    VoxelKey::new(
+                        new.x + span(next(), m),
+                        new.y + span(next(), m),
+                        new.z + span(next(), m),
+                    )
+                };
+                let within_old = [k.x - old.x, k.y - old.y, k.z - old.z]
+                    .iter()
+                    .all(|d| d.unsigned_abs() <= near_old);
+                slot.key = wrap(k);
+                slot.flags = if within_old && next() % 8 != 0 {
+                    OCCUPIED
+                } else {
+                    0
+                };
+            }
+            let general = Shift::new(old, new, radius);
+            let reach = general.reach();
+            assert!(radius as u32 + drift + reach < 1 << 15);
+            let near = Shift {
+                near: Some(wrap(new)),
+                ..Shift::new(old, new, radius)
+            };
+            let mut from = 0;
+            loop {
+                let rest = &slots[from..];
+                let (a, b) = (general.next_beyond(rest), near.next_beyond(rest));
+                assert_eq!(a, b, "round {round}: r = {radius}, {old:?} → {new:?}");
+                let Some(i) = a else { break };
+                hits += 1;
+                from += i + 1;
+            }
+        }
+        assert!(hits > 10_000, "{hits}");
+    }
 
     #[test]
     fn the_32_bit_window_test_is_the_64_bit_one() {
@@ -243,12 +337,11 @@ mod tests {
                 let r = i64::from(radius);
                 let want = k.distance_squared(map.centre) <= r * r;
                 assert_eq!(
-                    map.in_window_32(k),
+                    map.in_window(k),
                     want,
                     "{k:?} {:?} r = {radius}",
                     map.centre
                 );
-                assert_eq!(map.in_window(k), want);
             }
         }
     }

@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 mod rice_codes;
 mod stored;
 mod transform;
+mod wire_count;
 pub use rice_codes::encode_rice;
 pub(crate) use rice_codes::{decode_rice_at, encode_rice_at, rice_end};
 #[cfg(feature = "stored-codes")]
@@ -29,6 +30,7 @@ pub use stored::STORED_MARK;
 #[cfg(test)]
 pub(super) use transform::hadamard;
 use transform::{decode_band, encode_band, max_or_zero, rotate};
+pub use wire_count::wire_count;
 
 /// How voxel summaries are quantized. Part of the session configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -256,12 +258,6 @@ pub(super) fn block_range(dim: usize, blocks: NonZeroUsize, b: usize) -> core::o
 
 /// Largest point count a summary carries: f32 counts exactly up to 2²⁴.
 pub const MAX_COUNT: u32 = 1 << 24;
-
-/// The count as the wire carries it, if it is a whole number in 1..=[`MAX_COUNT`].
-pub fn wire_count(count: f32) -> Option<u32> {
-    let n = count as u32; // saturating; NaN → 0
-    ((1..=MAX_COUNT).contains(&n) && n as f32 == count).then_some(n)
-}
 
 /// The size class of a stamped summary's codes ([`super::summary`]: forgetting): its weight n rounded
 /// up, at least 2 (a faded voxel's scatter is sent even below two points' weight), at most
