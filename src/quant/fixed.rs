@@ -29,6 +29,16 @@
 //! path → and the fine grid, which re-grids more often), scanning LiDAR: thumbv6m 16,651 → 11,865 →
 //! 12,515, riscv32imac 11,946 → 8,703 → 9,266; depth frames 1,869 → 1,849 and 1,549 → 1,550; the
 //! firmware's stream at the base station 0.0226 → 0.0180 on both (lidar_f3_i8 0.0475 → 0.0260).
+//!
+//! The coolings of a young voxel (≤ 255 points) that the sparse path does not take — an 8×8 ToF's voxel
+//! of one point revisited above all, also a first visit of several points and a scale that must change —
+//! take `small` (feature `sparse-cooling`): the same merge in 32-bit products, the old scatters from a
+//! table of the 32 keys, σ read to 2⁻²⁴ (this general merge reads it to 2⁻¹⁴ steps: 1.6 codes off for a
+//! mean of a tenth of a step; the small path ≤ 1.0 on the same merges, test
+//! `small_voxel_merges_match_the_f32_path`). `bash boards/measure-targets.sh --table thumbv6m`, instructions
+//! a point, f = 3, i8 features: ToF 8×8 12,124 → 10,132, scanning LiDAR 8,968 → 8,768, depth frames 1,755
+//! → 1,591; the firmware's stream at the base station 0.0129 → 0.0129 (lidar_f3_i8 0.0226 → 0.0225);
+//! flash of the boards' build +1,088 B, stack +208 B, the minimal build unchanged.
 
 use super::{
     psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_CODE_MAX, PSI_SHIFT, PSI_STEPS_LOG2,
@@ -63,6 +73,8 @@ macro_rules! per_dim_step {
 }
 
 mod bits;
+#[cfg(feature = "sparse-cooling")]
+mod small;
 #[cfg(feature = "sparse-cooling")]
 mod sparse;
 use bits::*;
@@ -336,6 +348,13 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         #[cfg(feature = "sparse-cooling")]
         if SHORT && n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
             if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, fine, dither) {
+                return merged;
+            }
+        }
+        // The rest of a young voxel's coolings (an 8×8 ToF's voxel of one point revisited, above all): `small`.
+        #[cfg(feature = "sparse-cooling")]
+        if SHORT && n0 <= small::SMALL_MAX_OLD {
+            if let Some(merged) = self.merge_small(sums, fix, n0, fine, dither) {
                 return merged;
             }
         }

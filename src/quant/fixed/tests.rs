@@ -496,3 +496,180 @@ fn the_fixed_shift_is_the_saturating_shift() {
         }
     }
 }
+
+/// Codes of one point for the single-point tests: around an offset, at the ends of the range (±127, −128),
+/// tiny (a scale of a few hundredths of a step), or all zero.
+#[cfg(feature = "sparse-cooling")]
+fn point_codes(rng: &mut Rng, kind: u32) -> [i8; D] {
+    let offset = (rng.next() % 200) as i32 - 100;
+    core::array::from_fn(|d| match kind {
+        0 => ((rng.next() % 41) as i32 - 20 + offset + 3 * d as i32 - 24).clamp(-127, 127) as i8,
+        1 => [127, -128, -127, 0][(rng.next() % 4) as usize],
+        2 => (rng.next() % 3) as i8 - 1,
+        3 => 0,
+        4 => [127, -128][(rng.next() % 2) as usize],
+        _ => (rng.next() % 256) as u8 as i8,
+    })
+}
+
+/// A voxel of at most [`super::small::SMALL_MAX_OLD`] points — above all one point revisited by a few (the
+/// ToF's usual cooling after a first visit), also none, a few or 255 — merged with 1 to 255 points takes
+/// the small-voxel path, which holds to the f32 path with the general merge's bounds (scale within one f16
+/// step, mean within 1.3 code steps, scatter within one key step) on both grids, over codes at the ends of
+/// the range, tiny and zero codes, fresh and kept scales; and uses the dither stream as the general merge
+/// does. The general merge's errors on the same merges are printed beside its.
+#[cfg(feature = "sparse-cooling")]
+#[test]
+fn small_voxel_merges_match_the_f32_path() {
+    use super::small::{SMALL_MAX_NEW, SMALL_MAX_OLD};
+    let fix = Int8Fix::new(S);
+    let mut rng = Rng(0x51_6E_61_E5);
+    let trials = 6000u32;
+    for fine in [false, true] {
+        let (mut worst_mu, mut worst_psi) = (0.0f32, 0.0f32);
+        let (mut general_mu, mut general_psi) = (0.0f32, 0.0f32);
+        let (mut df, mut dx) = (Dither::new(31), Dither::new(31));
+        let mut checked_psi = 0;
+        for trial in 0..trials {
+            // Half the trials one old point, the rest 0 to 255.
+            let n0 = if trial % 2 == 0 {
+                1
+            } else {
+                [0, 2, 3, 17, SMALL_MAX_OLD][(trial as usize / 2) % 5]
+            };
+            let first = point_codes(&mut rng, trial % 6);
+            let mut old_sums = CodeSums::EMPTY;
+            for j in 0..n0 {
+                if j == 0 {
+                    old_sums.add(&first);
+                } else {
+                    // Around the first point, by a few codes.
+                    old_sums.add(&core::array::from_fn(|d| {
+                        (i32::from(first[d]) + (rng.next() % 7) as i32 - 3).clamp(-128, 127) as i8
+                    }));
+                }
+            }
+            // As the map makes it (its first cooling) or from f32 statistics.
+            let old = if trial % 4 == 3 {
+                let mut obs = old_sums.to_obs(S);
+                obs.count = n0 as f32;
+                QuantVoxel::<D, P>::encode(&obs, &mut Dither::new(trial + 1))
+            } else {
+                QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(
+                    &old_sums,
+                    &fix,
+                    fine,
+                    &mut Dither::new(trial + 1),
+                )
+            };
+            // Mostly a few points (the ToF's usual revisit), every third up to a full CodeSums.
+            let n1 = 1 + rng.next() % if trial % 3 == 0 { SMALL_MAX_NEW } else { 8 };
+            let mut sums = CodeSums::EMPTY;
+            let near = trial % 7 < 3;
+            for _ in 0..n1 {
+                let codes: [i8; D] = if near {
+                    // Close to the first point (a fraction of a code step apart, or the same point).
+                    let spread = rng.next() % 4;
+                    core::array::from_fn(|d| {
+                        (i32::from(first[d]) + (rng.next() % (2 * spread + 1)) as i32
+                            - spread as i32)
+                            .clamp(-128, 127) as i8
+                    })
+                } else {
+                    let kind = rng.next() % 6;
+                    point_codes(&mut rng, kind)
+                };
+                sums.add(&codes);
+            }
+            let mut dg = dx.clone();
+            let got = old
+                .merge_small(&sums, &fix, n0, fine, &mut dx)
+                .unwrap_or_else(|| panic!("trial {trial}: not taken"));
+            let general = old.merge_general(&sums, &fix, fine, &mut dg);
+            assert_eq!(dx.clone().next(), dg.next(), "trial {trial}: the dither");
+            // The dispatch takes it (where neither the lone point's nor the sparse path does).
+            let mut dd = Dither::new(trial);
+            let sparse = n0 >= 2
+                && n1 <= SPARSE_MAX_NEW
+                && old
+                    .merge_sparse(
+                        &sums,
+                        &ScatterUnits::new(&fix, n0, n0 + n1),
+                        n0,
+                        fix.steps_of(old.mu_scale),
+                        fine,
+                        &mut dd.clone(),
+                    )
+                    .is_some();
+            if !sparse && (n0, n1) != (0, 1) {
+                assert_eq!(
+                    old.merge_codes_fixed(&sums, &fix, fine, &mut dd.clone()),
+                    old.merge_small(&sums, &fix, n0, fine, &mut dd).unwrap(),
+                );
+            }
+
+            let mut want = old.decode();
+            want.merge(&sums.to_obs(S));
+            let float = if fine {
+                old.reencode_fine(&want, &mut df)
+            } else {
+                old.reencode(&want, &mut df)
+            };
+            let up = got.mu_scale.to_bits().abs_diff(float.mu_scale.to_bits());
+            assert!(
+                up <= 1,
+                "trial {trial} (fine {fine}): scale {} vs {}",
+                got.mu_scale,
+                float.mu_scale
+            );
+            assert_eq!(got.decode().count, want.count, "trial {trial}");
+            // A code step: the larger of the f32 path's scale and a fresh one's (the test above).
+            let headroom = if fine {
+                super::super::FINE_HEADROOM
+            } else {
+                1.25
+            };
+            let max_mean = want.mean.iter().fold(0.0f32, |a, m| a.max(m.abs()));
+            let step = (max_mean * headroom / 63.0).max(float.mu_scale.to_f32());
+            let top = want.scatter.iter().fold(0.0f32, |a, &b| a.max(b));
+            let wide = 1.0 + 1.0 / (1u32 << super::super::PSI_STEPS_LOG2) as f32;
+            // The general merge's errors for comparison only: its per-voxel scatter units are too coarse for
+            // the tiniest scatters (a pair of near-zero points: ≈ 1 % of S), which this path keeps.
+            for (q, is_single, worst) in [
+                (&got, true, (&mut worst_mu, &mut worst_psi)),
+                (&general, false, (&mut general_mu, &mut general_psi)),
+            ] {
+                let back = q.decode();
+                for d in 0..D {
+                    if step == 0.0 {
+                        assert_eq!(back.mean[d], 0.0, "trial {trial} mean[{d}]");
+                    } else {
+                        let e = (back.mean[d] - want.mean[d]).abs() / step;
+                        *worst.0 = worst.0.max(e);
+                    }
+                    if want.scatter[d] > top * 1e-2 {
+                        let r = back.scatter[d] / want.scatter[d];
+                        *worst.1 = worst.1.max((r - 1.0).abs());
+                        checked_psi += usize::from(is_single);
+                        assert!(
+                            !is_single || (r > 0.975 / wide && r < 1.025 * wide),
+                            "trial {trial} scatter[{d}]: {r} (want {}, n1 {n1})",
+                            want.scatter[d]
+                        );
+                    } else if top == 0.0 {
+                        assert_eq!(back.scatter[d], 0.0, "trial {trial} scatter[{d}]");
+                    }
+                }
+            }
+            assert!(
+                worst_mu <= 1.3,
+                "trial {trial}: mean off by {worst_mu} steps (n1 {n1}, general {general_mu}, step {step}, scale {} vs {}; old {:?}; got {:?} want {:?})",
+                got.mu_scale, float.mu_scale, old.mu_scale, &got.decode().mean[..4], &want.mean[..4]
+            );
+        }
+        std::println!(
+            "small-voxel path (fine {fine}): worst mean error {worst_mu:.3} steps (general merge {general_mu:.3}), scatter off by {worst_psi:.3} (general {general_psi:.3}) over {checked_psi} scatters"
+        );
+        assert!(checked_psi > 10_000);
+    }
+}
