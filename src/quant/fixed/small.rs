@@ -6,19 +6,22 @@
 //! m = x/n and S = S₀ + (num·n + n₀y²)/(n₁n), num = n₁Σc² − (Σc)² exact in integers (for n₀ = n₁ = 1:
 //! S = y²/2). The general merge forms 64-bit products from 16-bit halves and converts every scatter to an
 //! f32 bit pattern through per-voxel units: on the self-test's ToF (thumbv6m) ≈ 34,500 instructions a
-//! cooling, 2,118 such coolings (1,428 of them n₀ = 1). Here x and y per dimension are two 32-bit products
-//! (m₀ = q·σ₀ with σ₀ to 2^−(f+5) steps, f ≤ 20 fraction bits, fewer for many points so that nothing
-//! leaves an i32); per cooling one shift for each that brings its largest below 2¹⁵, so the mean code is
-//! one 16 × 16-bit product by a 16-bit 1/(nσ) and n₀y² one 15 × 15-bit product; the old scatters from a
-//! table of the 32 keys, in the same units; each scatter's f32 bits from a 16-bit mantissa times the
-//! per-cooling constant s²/(n₁n) (as the general merge's last step). The mean scale follows the general
-//! merge's rules (kept while it fits, else fresh) compared at σ₀'s precision, the codes use the same dither
-//! stream conventions (bytes 0, 1 of each dimension's 16 bits: μ, Ψ).
+//! cooling of a one-point voxel, ≈ 22,000 of a larger one; this path runs those 2,119 coolings (1,428 of
+//! them n₀ = 1) in 14,855 each, ≈ 232 a dimension (`PROFILE_SCENARIO=tof_f3_i8 bash
+//! boards/measure-targets.sh --profile thumbv6m`: 31.5 M instructions). Here x and y per dimension are
+//! two 32-bit products (m₀ = q·σ₀ with σ₀ to 2^−(f+5) steps, f ≤ 20 fraction bits, fewer for many
+//! points so that nothing leaves an i32); per cooling one shift for each that brings its largest below
+//! 2¹⁵, so the mean code is one 16 × 16-bit product by a 16-bit 1/(nσ) and n₀y² one 15 × 15-bit product;
+//! the old scatters from a table of the 32 keys, in the same units; each scatter's f32 bits from a 16-bit
+//! mantissa times the per-cooling constant s²/(n₁n) (as the general merge's last step). The mean scale
+//! follows the general merge's rules (kept while it fits, else fresh) compared at σ₀'s precision, the
+//! codes use the same dither stream conventions (bytes 0, 1 of each dimension's 16 bits: μ, Ψ).
 //!
 //! Not bit-exact with the general merge: the mean is rounded to 1/512 of a code before the dither (the
 //! general path: 1/256), y to 15 significant bits before squaring (the scatter codes read 2 + 8 of the
 //! mantissa), and σ is read to 2⁻²⁴ (the general merge: 2⁻¹⁴ steps, which puts a mean of a tenth of a step
-//! 1.6 codes off). Tests hold it to the f32 path with the general merge's bounds (`tests.rs`).
+//! up to 1.85 codes off; this path ≤ 1.0 on the same 12,000 merges). Tests hold it to the f32 path with the
+//! general merge's bounds (`tests.rs`, `small_voxel_merges_match_the_f32_path`).
 
 use super::super::{
     psi_key, Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_BITS, PSI_CODE_MAX, PSI_SHIFT,
