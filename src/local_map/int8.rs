@@ -172,7 +172,9 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
         let super::hot::Acc::Codes(c) = &mut e.acc else {
             return None;
         };
-        if c.is_full() {
+        // Full, or empty (never at hand in practice: a voxel's first point takes the general path): the
+        // general path, which starts or restarts the sums.
+        if c.is_full() || c.count == 0 {
             return None;
         }
         if !c.add_checked(codes) {

@@ -81,6 +81,18 @@ impl<const D: usize> Store<D> {
         true
     }
 
+    /// One point's codes as the sums of a set of one (what [`Self::add`] gives an empty store), written
+    /// over whatever the store held: no clearing first, no reading.
+    #[cfg(feature = "sparse-cooling")]
+    #[inline]
+    fn set(&mut self, codes: &[i8; D]) {
+        for ((s, q), &c) in self.sum.iter_mut().zip(&mut self.squares).zip(codes) {
+            let c = i32::from(c);
+            *s = c;
+            *q = c.wrapping_mul(c) as u32;
+        }
+    }
+
     #[inline]
     fn sum(&self, i: usize) -> i32 {
         self.sum.get(i).copied().unwrap_or(0)
@@ -118,9 +130,16 @@ impl<const D: usize> CodeSums<D> {
     }
 
     /// Add one point's codes (callers check [`code_in_range`](super::code_in_range) and [`Self::is_full`]): an integer addition
-    /// and a multiply-add per dimension.
+    /// and a multiply-add per dimension. The first point (count 0) is written over whatever the sums
+    /// held: a set of count 0 holds nothing whatever its sums say ([`Self::clear`]).
     #[inline]
     pub fn add(&mut self, codes: &[i8; D]) {
+        #[cfg(any(latentbki_dsp, feature = "sparse-cooling"))]
+        if self.count == 0 {
+            self.store.set(codes);
+            self.count = 1;
+            return;
+        }
         self.count = self.count.wrapping_add(1);
         #[cfg(latentbki_dsp)]
         let _checked_by_the_caller = self.store.add_outlined(codes);
@@ -128,11 +147,33 @@ impl<const D: usize> CodeSums<D> {
         let _checked_by_the_caller = self.store.add(codes);
     }
 
+    /// Hold nothing, in place: by the count alone where the first point is written over the sums
+    /// ([`Self::add`]; every reader goes by the count: [`Self::to_obs`] of none is empty, merges of none
+    /// change nothing), so a hot entry reused for another voxel is not cleared first (a 384–512-byte
+    /// `memclr` per new hot voxel: ≈ 300 instructions on a Cortex-M4F). A minimal build without the DSP
+    /// store (`default-features = false`: riscv32imac's has no flash for the writing loop) zeroes them.
+    #[inline]
+    pub fn clear(&mut self) {
+        #[cfg(any(latentbki_dsp, feature = "sparse-cooling"))]
+        {
+            self.count = 0;
+        }
+        #[cfg(not(any(latentbki_dsp, feature = "sparse-cooling")))]
+        {
+            *self = Self::EMPTY;
+        }
+    }
+
     /// Add one point's codes if every one is in range ([`code_in_range`](super::code_in_range); callers check
     /// [`Self::is_full`]); `false`, and nothing changed, if one is not. On a Cortex-M4/M7 the check rides
     /// on the additions' loads (`src/obs/dsp.rs`); elsewhere it runs first.
-    #[inline]
+    #[inline(always)]
     pub fn add_checked(&mut self, codes: &[i8; D]) -> bool {
+        if self.count == 0 {
+            // The first point (never the map's per-point path: a voxel's first point takes its general
+            // path): the stale sums zeroed, then checked and added as any point.
+            self.store = Store::EMPTY;
+        }
         #[cfg(not(latentbki_dsp))]
         if !super::code_in_range(codes) {
             return false;
@@ -280,6 +321,46 @@ mod tests {
     fn sums_are_the_codes_sums() {
         sums_equal_the_definition::<64>();
         sums_equal_the_definition::<7>();
+    }
+
+    /// Sums cleared by their count and used again hold what fresh sums hold after the same points (the
+    /// first point written over the stale sums), by `add` and by `add_checked`; an out-of-range first
+    /// point is refused and leaves the sums empty.
+    #[test]
+    fn cleared_sums_forget_their_old_points() {
+        const D: usize = 9;
+        let mut state = 77u32;
+        let mut reused = CodeSums::<D>::EMPTY;
+        for round in 0..40 {
+            for _ in 0..(round % 5 + 3) {
+                let c = codes::<D>(&mut state).map(|c| c.max(-127));
+                reused.add(&c);
+            }
+            reused.clear();
+            assert_eq!(reused.count, 0);
+            if round % 2 == 1 {
+                assert!(!reused.add_checked(&[i8::MIN; D]));
+                assert_eq!(reused.count, 0, "a refused first point leaves nothing");
+            }
+            // The definition: Σc and Σc² of the new points alone.
+            let mut want = [(0i32, 0u32); D];
+            let n = round % 4 + 1;
+            for p in 0..n {
+                let c = codes::<D>(&mut state).map(|c| c.max(-127));
+                for (w, &c) in want.iter_mut().zip(&c) {
+                    let c = i32::from(c);
+                    *w = (w.0 + c, w.1 + (c * c) as u32);
+                }
+                if (round / 2 + p) % 2 == 0 {
+                    reused.add(&c);
+                } else {
+                    assert!(reused.add_checked(&c));
+                }
+            }
+            assert_eq!(reused.count, n);
+            let got: [(i32, u32); D] = core::array::from_fn(|i| (reused.sum(i), reused.square(i)));
+            assert_eq!(got, want, "round {round}");
+        }
     }
 
     #[test]

@@ -6,7 +6,9 @@
 //! loaded and stored). Per word of four codes the DSP instructions do it in 13: `qsub8` + `orr` (the check:
 //! c − (−127), saturated, is negative only for −128), `sxtb16` ×2 (the codes as two pairs of 16-bit lanes),
 //! `sadd16` ×2 (Σc of four dimensions, two per word: |Σc| ≤ 255·127 fits 16 bits),
-//! `smlabb`/`smlatt` ×4 (Σc²), and one `ldm` and one `stm` of the block's six words.
+//! `smlabb`/`smlatt` ×4 (Σc²), and one `ldm` and one `stm` of the block's six words. A hot voxel's first
+//! point is written over the stale sums (`set`: `sxtb16` ×2, `smulbb`/`smultt` ×4, one `stm`), so a
+//! reused entry is never cleared.
 //!
 //! Why `unsafe`: stable Rust reaches these instructions only through `asm!` (`core::arch::arm`'s DSP
 //! intrinsics are unstable), and the block's six words are loaded and stored by the same `asm!` (`ldm`/`stm`:
@@ -61,6 +63,19 @@ impl<const D: usize> Lanes<D> {
         let (words, tail_codes) = codes.as_chunks::<4>();
         sub_blocks(blocks, core::hint::black_box(words));
         step_tail(tail, tail_codes, false);
+    }
+
+    /// One point's codes as the sums of a set of one (what [`Self::add`] gives [`Self::EMPTY`]), written
+    /// over whatever the lanes held: no clearing first, no reading. A hot voxel's first point: inlined.
+    #[inline(always)]
+    pub(super) fn set(&mut self, codes: &[i8; D]) {
+        let (blocks, tail) = self.0.as_chunks_mut::<4>();
+        let (words, tail_codes) = codes.as_chunks::<4>();
+        set_blocks(blocks, words);
+        for (t, &c) in tail.iter_mut().zip(tail_codes) {
+            let q = square(i32::from(c));
+            *t = [c as i16 as u16, q as u16, (q >> 16) as u16];
+        }
     }
 
     /// Σc of dimension `i` (0 beyond `D`).
@@ -214,6 +229,56 @@ fn add_blocks(blocks: &mut [[[u16; 3]; 4]], words: &[[i8; 4]]) -> u32 {
         add_block(&mut p, w, &mut bad);
     }
     bad
+}
+
+/// Each whole block's six words as one point's sums (its code word's lanes and squares), written over
+/// what they held: `sxtb16` ×2, `smulbb`/`smultt` ×4 and one `stm` a block (the same fields in safe
+/// Rust took 22 instructions a block: halfword stores, byte loads).
+#[cfg(latentbki_dsp)]
+#[inline(always)]
+fn set_blocks(blocks: &mut [[[u16; 3]; 4]], words: &[[i8; 4]]) {
+    // At most one code word per block (both are `D / 4` long): `p` never passes the end of `blocks`.
+    let words = words.get(..blocks.len()).unwrap_or(words);
+    let mut p: *mut u32 = blocks.as_mut_ptr().cast();
+    for w in words {
+        let w = u32::from_le_bytes(w.map(|c| c as u8));
+        // SAFETY: as `add_block`'s: `p` points into the `&mut` blocks, word-aligned, at this word's
+        // block (never more words than blocks), so `stm` writes exactly its six words and leaves `p` one
+        // block further; nothing is read; no stack; r0–r5 declared clobbered; no flags are set.
+        unsafe {
+            core::arch::asm!(
+                "sxtb16 r0, {w}",
+                "sxtb16 r1, {w}, ror #8",
+                "smulbb r2, r0, r0",
+                "smulbb r3, r1, r1",
+                "smultt r4, r0, r0",
+                "smultt r5, r1, r1",
+                "stm {p}!, {{r0, r1, r2, r3, r4, r5}}",
+                p = inout(reg) p,
+                w = in(reg) w,
+                out("r0") _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r4") _,
+                out("r5") _,
+                options(nostack, preserves_flags),
+            );
+        }
+    }
+}
+
+/// The portable model of [`set_blocks`] (the layout above, in plain stores).
+#[cfg(not(latentbki_dsp))]
+#[inline(always)]
+fn set_blocks(blocks: &mut [[[u16; 3]; 4]], words: &[[i8; 4]]) {
+    let lane = |c: i8| c as i16 as u16;
+    let sq = |c: i8| square(i32::from(c));
+    for (b, &[c0, c1, c2, c3]) in blocks.iter_mut().zip(words) {
+        let s02 = word(lane(c0), lane(c2));
+        let s13 = word(lane(c1), lane(c3));
+        set_block_words(b, [s02, s13, sq(c0), sq(c1), sq(c2), sq(c3)]);
+    }
 }
 
 /// One block: its code word's check flags into `bad`, its six words updated, `p` advanced past it.
@@ -448,6 +513,32 @@ mod tests {
 
     /// A block's words in memory: Σc of dimensions 0 and 2 in the first word's lanes, 1 and 3 in the
     /// second's, then Σc² in order (what `ldm` hands the `asm!` block).
+    /// `set` writes what `add` makes of empty lanes, over any old contents, for whole blocks and a tail,
+    /// −128 included.
+    fn set_is_add_to_empty<const D: usize>() {
+        let mut state = 0x9E37_79B9u32;
+        let mut stale = Lanes::<D>::EMPTY;
+        for _ in 0..300 {
+            let codes: [i8; D] = core::array::from_fn(|_| {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                (state >> 24) as u8 as i8
+            });
+            let mut want = Lanes::<D>::EMPTY;
+            want.add(&codes);
+            stale.set(&codes);
+            assert_eq!(stale, want);
+            stale.add(&codes); // stale contents for the next round
+        }
+    }
+
+    #[test]
+    fn set_writes_one_point() {
+        set_is_add_to_empty::<64>();
+        set_is_add_to_empty::<7>();
+    }
+
     #[test]
     fn block_layout() {
         let mut lanes = Lanes::<4>::EMPTY;
