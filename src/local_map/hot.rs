@@ -190,7 +190,7 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // inliner's choices in this function and cost riscv32imac's minimal build 180 B of flash it
             // does not have. A sparse sensor's short path (feature `sparse-cooling`, ≈ 2 KB).
             #[cfg(all(feature = "sparse-cooling", not(latentbki_soft_float)))]
-            (Acc::Float(o), true) if !older && !weighed && !o.is_empty() => {
+            (Acc::Float(o), true) if !older && !weighed => {
                 slot.codes
                     .merge_here(fine, o, &mut self.scratch, &mut self.dither)
             }
