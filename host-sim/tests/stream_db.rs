@@ -131,6 +131,15 @@ fn database_round_trip_is_exact_and_damaged_bytes_write_nothing() {
     assert!(SqliteStore::open_read_only(&path).is_ok());
     drop(writer);
     drop(SqliteStore::open(&path).unwrap());
+    // A lock its holder lets go of a moment later (as a spawned child's copy of the descriptor does at
+    // its `exec`) is waited for, not reported as another writer.
+    let briefly = SqliteStore::open(&path).unwrap();
+    let releaser = std::thread::spawn(move || {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        drop(briefly);
+    });
+    drop(SqliteStore::open(&path).expect("the lock released within the wait is taken"));
+    releaser.join().unwrap();
 
     // Foreign files, other versions and dimensions: clear errors.
     let junk = dir.path().join("junk.db");

@@ -21,9 +21,8 @@ impl<
     /// that changed since they were last streamed, in ring order over the map's slots (each gets its
     /// turn), so a base station's map follows the robot while it works. The base station replaces a live
     /// copy by the next one and by the final one. A link of stored codes streams the changed cold voxels'
-    /// codes as they are (a hot voxel's new points once they have cooled into its codes). (A firmware
-    /// that wants only final voxels calls
-    /// [`Self::tick`], and links none of this.)
+    /// codes as they are (a hot voxel's new points once they have cooled into its codes). A firmware that
+    /// wants only final voxels calls [`Self::tick`], and links none of this.
     pub fn tick_live<W: embedded_io::Write>(
         &mut self,
         w: &mut W,
@@ -34,8 +33,6 @@ impl<
             return self.tick(w, budget);
         }
         let hand = self.live_hand;
-        // A link of stored codes streams the changed cold voxels' codes as they are (a hot one once it
-        // cools); others, every changed voxel decoded and quantized for the wire.
         #[cfg(feature = "stored-codes")]
         if crate::sink::EvictionSink::<D>::wants_stored(&self.encoder) {
             let report =

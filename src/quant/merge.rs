@@ -23,7 +23,8 @@ use crate::stats::update_dim;
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// These codes merged with `new` and re-encoded in place (`fine`: on the weighed map's grid, as
     /// [`Self::reencode_fine_here`]): what `decode_into(work)`, `work.merge(new)` and the re-encode give,
-    /// bit for bit. `work` is scratch (left holding the merged statistics).
+    /// bit for bit. `work` is scratch (left holding the merged statistics). Empty `new`: nothing changes
+    /// (no re-encode, no dither drawn).
     pub(crate) fn merge_here(
         &mut self,
         fine: bool,
@@ -31,9 +32,12 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         work: &mut ObsStats<D>,
         dither: &mut Dither,
     ) {
-        // Nothing to merge (the merge changes nothing), or dimensions beyond whole eights (none at D = 64):
-        // the passes one by one.
-        if !(new.count > 0.0) || !D.is_multiple_of(8) {
+        // Nothing to merge: the codes stay as they are (as the general cooling leaves them).
+        if !(new.count > 0.0) {
+            return;
+        }
+        // Dimensions beyond whole eights (none at D = 64): the passes one by one.
+        if !D.is_multiple_of(8) {
             self.decode_into(work);
             work.merge(new);
             if fine {
@@ -216,10 +220,17 @@ mod tests {
                         let mut one = start;
                         let mut work = ObsStats::EMPTY;
                         one.merge_here(fine, &new, &mut work, &mut d_one);
-                        assert_eq!(one, reference, "fine {fine}, n0 {n0}, n1 {n1}, seed {seed}");
-                        assert_eq!(d_one.next(), d_ref.next(), "the same dither consumed");
                         if n1 > 0.0 {
+                            assert_eq!(
+                                one, reference,
+                                "fine {fine}, n0 {n0}, n1 {n1}, seed {seed}"
+                            );
+                            assert_eq!(d_one.next(), d_ref.next(), "the same dither consumed");
                             assert_eq!(work, merged, "the merged statistics left in `work`");
+                        } else {
+                            // Nothing merged: the codes and the dither untouched.
+                            assert_eq!(one, start, "fine {fine}, n0 {n0}, seed {seed}");
+                            assert_eq!(d_one.next(), dither.clone().next());
                         }
                         cases += 1;
                     }

@@ -124,6 +124,33 @@ CREATE TABLE sessions (
 ) WITHOUT ROWID;
 ";
 
+/// How long [`SqliteStore::open`] waits for a receiver's lock that another holder may be about to release.
+///
+/// Why wait at all: the lock is an `flock` on the lock file, held by every open copy of its descriptor. A
+/// process that starts a child (`fork`, `posix_spawn`) gives the child a copy of every descriptor until the
+/// child's `exec` closes them (`O_CLOEXEC`), so for that moment a closed store's lock is still held — by a
+/// child of another thread of the same program. A base station that reopens its database while another
+/// thread spawns a process (a test suite, a supervisor) saw "another base station is writing" for a lock
+/// no receiver held (CI, `stream_db`, under load). A receiver that really holds the lock holds it for
+/// longer than this, and is reported after it.
+const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Take `file`'s exclusive lock, trying again for up to `wait` while another holder has it: `Ok(false)` if
+/// it is still held then.
+fn lock_within(file: &std::fs::File, wait: std::time::Duration) -> std::io::Result<bool> {
+    let start = std::time::Instant::now();
+    loop {
+        match file.try_lock() {
+            Ok(()) => return Ok(true),
+            Err(std::fs::TryLockError::WouldBlock) if start.elapsed() < wait => {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            Err(std::fs::TryLockError::WouldBlock) => return Ok(false),
+            Err(std::fs::TryLockError::Error(error)) => return Err(error),
+        }
+    }
+}
+
 impl SqliteStore {
     /// Open the database for the receiver (created if missing), checking its schema version.
     pub fn open(path: &Path) -> Result<Self, StoreError> {
@@ -141,12 +168,10 @@ impl SqliteStore {
                     path: PathBuf::from(&lock_path).display().to_string(),
                     error,
                 })?;
-            match file.try_lock() {
-                Ok(()) => Some(file),
-                Err(std::fs::TryLockError::WouldBlock) => {
-                    return Err(StoreError::InUse(path.display().to_string()))
-                }
-                Err(std::fs::TryLockError::Error(error)) => {
+            match lock_within(&file, LOCK_WAIT) {
+                Ok(true) => Some(file),
+                Ok(false) => return Err(StoreError::InUse(path.display().to_string())),
+                Err(error) => {
                     return Err(StoreError::Lock {
                         path: PathBuf::from(&lock_path).display().to_string(),
                         error,
