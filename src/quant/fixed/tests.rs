@@ -31,6 +31,24 @@ impl Rng {
     }
 }
 
+/// The f32 cooling the fixed-point merges are held to: the codes decoded, merged with the sums (scale
+/// [`S`]) and re-encoded on the grid (`fine`); returns the merged statistics and the codes.
+fn float_cooling(
+    old: &QuantVoxel<D, P>,
+    sums: &CodeSums<D>,
+    fine: bool,
+    dither: &mut Dither,
+) -> (ObsStats<D>, QuantVoxel<D, P>) {
+    let mut want = old.decode();
+    want.merge(&sums.to_obs(S));
+    let float = if fine {
+        old.reencode_fine(&want, dither)
+    } else {
+        old.reencode(&want, dither)
+    };
+    (want, float)
+}
+
 #[test]
 fn the_reciprocal_table_is_the_division() {
     for k in 0..300u32 {
@@ -125,13 +143,7 @@ fn fixed_cooling_matches_the_f32_path_on(fine: bool) {
         let (n1, shift_by) = (1 + rng.next() % 255, (rng.next() % 21) as i32 - 10);
         let sums = rng.sums(n1, offset + shift_by);
 
-        let mut want = old.decode();
-        want.merge(&sums.to_obs(S));
-        let float = if fine {
-            old.reencode_fine(&want, &mut df)
-        } else {
-            old.reencode(&want, &mut df)
-        };
+        let (want, float) = float_cooling(&old, &sums, fine, &mut df);
         let float_scale = float.mu_scale;
         let float = float.decode();
         let fixed = old.merge_codes_fixed(&sums, &fix, fine, &mut dx);
@@ -608,13 +620,7 @@ fn small_voxel_merges_match_the_f32_path() {
                 );
             }
 
-            let mut want = old.decode();
-            want.merge(&sums.to_obs(S));
-            let float = if fine {
-                old.reencode_fine(&want, &mut df)
-            } else {
-                old.reencode(&want, &mut df)
-            };
+            let (want, float) = float_cooling(&old, &sums, fine, &mut df);
             let up = got.mu_scale.to_bits().abs_diff(float.mu_scale.to_bits());
             assert!(
                 up <= 1,
