@@ -107,9 +107,24 @@ impl Int8Fix {
 }
 
 impl<const D: usize, const P: usize> QuantVoxel<D, P> {
-    /// These codes, of `n0` points, merged with `sums` of scale `fix`. `None` when a range would not
-    /// fit (a scale of 64 steps or more, more points; nothing consumed from `dither` then).
+    /// These codes, of `n0` points, merged with `sums` of scale `fix`, in place (no 104-byte value
+    /// returned and copied twice on its way to the slot). False, and nothing changed, when a range would
+    /// not fit (a scale of 64 steps or more, more points; nothing consumed from `dither` then).
     #[inline(never)]
+    pub(super) fn merge_small_here(
+        &mut self,
+        sums: &CodeSums<D>,
+        fix: &Int8Fix,
+        n0: u32,
+        fine: bool,
+        dither: &mut Dither,
+    ) -> bool {
+        self.merge_small_in::<true>(sums, fix, n0, fine, dither)
+            .is_some()
+    }
+
+    /// [`Self::merge_small_here`] as a value (`None`: not taken).
+    #[cfg(test)]
     pub(super) fn merge_small(
         &self,
         sums: &CodeSums<D>,
@@ -118,7 +133,9 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         fine: bool,
         dither: &mut Dither,
     ) -> Option<Self> {
-        self.merge_small_in::<true>(sums, fix, n0, fine, dither)
+        let mut out = *self;
+        out.merge_small_here(sums, fix, n0, fine, dither)
+            .then_some(out)
     }
 
     /// [`Self::merge_small`] with the scatters always in a pass of their own (`FUSE` false): what the
@@ -132,21 +149,24 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         fine: bool,
         dither: &mut Dither,
     ) -> Option<Self> {
-        self.merge_small_in::<false>(sums, fix, n0, fine, dither)
+        let mut out = *self;
+        out.merge_small_in::<false>(sums, fix, n0, fine, dither)?;
+        Some(out)
     }
 
-    /// The merge; `FUSE`: a voxel of at most one point merged with one (no old scatter, no numerator: the
-    /// scatter is n₀y², its largest known from y's extremes) computes each scatter where its codes are
-    /// made, not in a pass of its own.
+    /// The merge, written over these codes at its end (`None` before anything is written); `FUSE`: a
+    /// voxel of at most one point merged with one (no old scatter, no numerator: the scatter is n₀y², its
+    /// largest known from y's extremes) computes each scatter where its codes are made, not in a pass of
+    /// its own.
     #[inline(always)]
     fn merge_small_in<const FUSE: bool>(
-        &self,
+        &mut self,
         sums: &CodeSums<D>,
         fix: &Int8Fix,
         n0: u32,
         fine: bool,
         dither: &mut Dither,
-    ) -> Option<Self> {
+    ) -> Option<()> {
         let n1 = sums.count;
         if n1 == 0 || n1 > SMALL_MAX_NEW || n0 > SMALL_MAX_OLD {
             return None;
@@ -332,15 +352,15 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let key = psi_key(f32::from_bits(bits(t)), (d >> 8) as u8) as i32;
             *pc = (key - base).clamp(0, PSI_CODE_MAX as i32) as u8;
         }
-        let mut codes = [0u8; P];
-        let (mu_out, psi_out) = codes.split_at_mut(super::super::section_len(D, MU_BITS));
+        // Every byte of both sections written (the packing fills the last byte's spare bits with 0).
+        let (mu_out, psi_out) = self
+            .codes
+            .split_at_mut(super::super::section_len(D, MU_BITS));
         pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
         pack_codes::<{ PSI_BITS as usize }>(&psi_codes, psi_out);
-        Some(Self {
-            count: f32::from_bits(f32_bits(n, 0)),
-            mu_scale,
-            psi_base,
-            codes,
-        })
+        self.count = f32::from_bits(f32_bits(n, 0));
+        self.mu_scale = mu_scale;
+        self.psi_base = psi_base;
+        Some(())
     }
 }
