@@ -282,6 +282,26 @@ mod tests {
         (w, m, s)
     }
 
+    /// A first point written over a used set is Welford's step on an empty one, whole eights and a tail.
+    #[test]
+    fn set_point_writes_over_every_value() {
+        fn check<const D: usize>() {
+            let y: [f32; D] = core::array::from_fn(|i| i as f32 * 0.75 - 3.0);
+            let mut one = ObsStats::<D>::EMPTY;
+            one.add_point(&y);
+            let mut set = ObsStats::<D> {
+                count: 7.0,
+                mean: [9.0; D],
+                scatter: [5.0; D],
+            };
+            set.set_point(&y);
+            assert_eq!(set, one, "D = {D}");
+        }
+        check::<64>();
+        check::<13>();
+        check::<3>();
+    }
+
     #[test]
     fn welford_and_merge_equal_the_two_pass_moments() {
         let ys = [
