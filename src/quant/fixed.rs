@@ -373,10 +373,9 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
         // The rest of a young voxel's coolings (an 8×8 ToF's voxel of one point revisited, above all): `small`.
         #[cfg(feature = "sparse-cooling")]
-        if SHORT && n0 <= small::SMALL_MAX_OLD {
-            if self.merge_small_here(sums, fix, n0, fine, dither) {
-                return;
-            }
+        if SHORT && n0 <= small::SMALL_MAX_OLD && self.merge_small_here(sums, fix, n0, fine, dither)
+        {
+            return;
         }
         // The old scatters in units, one per Ψ code (32) instead of one per dimension (64): a voxel's codes
         // share their base, so the code alone picks the value.
