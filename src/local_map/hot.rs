@@ -180,9 +180,8 @@ impl<const D: usize, const CAP: usize, const P: usize, const H: usize, C: MapClo
             // int8 sums merge into the codes in fixed point where the map cools so (no FPU): no float
             // operation. Otherwise (or when the codes must fade first) they merge in f32 below.
             (Acc::Codes(c), _) if fixed && !older => {
-                slot.codes = slot
-                    .codes
-                    .merge_codes_fixed(c, &self.int8_fix, fine, &mut self.dither)
+                slot.codes
+                    .merge_codes_fixed_here(c, &self.int8_fix, fine, &mut self.dither)
             }
             // A revisit of f32 points where an FPU makes the f32 cooling fast: decode, merge and the
             // encoder's maxima in one pass (`QuantVoxel::merge_here`, the same codes bit for bit). Left

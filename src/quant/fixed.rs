@@ -282,7 +282,6 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
     /// Two passes over the dimensions: the merged means and scatters (the latter as the f32 bit patterns of
     /// their values), then — once the mean's scale and the scatter's base are known — the codes with the
     /// dither stream `reencode` uses. Every product fits its width by the bounds of int8 codes (|Σc| ≤ 255·127).
-    #[inline(never)]
     pub fn merge_codes_fixed(
         &self,
         sums: &CodeSums<D>,
@@ -290,6 +289,21 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         fine: bool,
         dither: &mut Dither,
     ) -> Self {
+        let mut out = *self;
+        out.merge_codes_fixed_here(sums, fix, fine, dither);
+        out
+    }
+
+    /// [`Self::merge_codes_fixed`] in place: what the map's cooling calls (the merged value returned, then
+    /// copied into the slot, was two 104-byte copies a cooling).
+    #[inline(never)]
+    pub fn merge_codes_fixed_here(
+        &mut self,
+        sums: &CodeSums<D>,
+        fix: &Int8Fix,
+        fine: bool,
+        dither: &mut Dither,
+    ) {
         self.merge_in::<true>(sums, fix, fine, dither)
     }
 
@@ -303,31 +317,34 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         fine: bool,
         dither: &mut Dither,
     ) -> Self {
-        self.merge_in::<false>(sums, fix, fine, dither)
+        let mut out = *self;
+        out.merge_in::<false>(sums, fix, fine, dither);
+        out
     }
 
-    /// The merge; `SHORT`: a sparse sensor's coolings take their short paths (feature `sparse-cooling`).
+    /// The merge, in place; `SHORT`: a sparse sensor's coolings take their short paths (feature
+    /// `sparse-cooling`).
     #[inline(always)]
     fn merge_in<const SHORT: bool>(
-        &self,
+        &mut self,
         sums: &CodeSums<D>,
         fix: &Int8Fix,
         fine: bool,
         dither: &mut Dither,
-    ) -> Self {
+    ) {
         let n1 = sums.count;
         if n1 == 0 || fix.s.m == 0 {
-            return *self;
+            return;
         }
         let n0 = count_of(self.count.to_bits());
         #[cfg(feature = "sparse-cooling")]
         if SHORT && n0 == 0 && n1 == 1 {
             if let Some(first) = Self::encode_lone(sums, fix, fine, dither) {
-                return first;
+                *self = first;
+                return;
             }
         }
         let n = n0.saturating_add(n1).min(1 << 30);
-        let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
         // The trip count hidden from the optimiser: rolled loops, ≈ 1.5 KB of code instead of ≈ 5 KB.
         #[cfg(not(feature = "sparse-cooling"))]
         let dims = core::hint::black_box(D);
@@ -350,15 +367,15 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         #[cfg(feature = "sparse-cooling")]
         if SHORT && n0 >= 2 && n1 <= sparse::SPARSE_MAX_NEW && sigma > 0 {
             if let Some(merged) = self.merge_sparse(sums, &ctx, n0, sigma, fine, dither) {
-                return merged;
+                *self = merged;
+                return;
             }
         }
         // The rest of a young voxel's coolings (an 8×8 ToF's voxel of one point revisited, above all): `small`.
         #[cfg(feature = "sparse-cooling")]
-        if SHORT && n0 <= small::SMALL_MAX_OLD {
-            if let Some(merged) = self.merge_small(sums, fix, n0, fine, dither) {
-                return merged;
-            }
+        if SHORT && n0 <= small::SMALL_MAX_OLD && self.merge_small_here(sums, fix, n0, fine, dither)
+        {
+            return;
         }
         // The old scatters in units, one per Ψ code (32) instead of one per dimension (64): a voxel's codes
         // share their base, so the code alone picks the value.
@@ -374,6 +391,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
         let mut max_abs = 0u32;
         let mut psi_max_bits = 0u32;
+        let (mu_part, psi_part) = self.codes.split_at(super::section_len(D, MU_BITS));
         // Built in place (no zeroing of 512 bytes first: `__aeabi_memclr4` was ≈ 30 instructions per point
         // on thumbv6m).
         // A first visit of one point (most of a sparse sensor's coolings): its mean is its codes and its
@@ -468,12 +486,12 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             set_code(mu_out, MU_BITS, i, mc);
             set_code(psi_out, super::PSI_BITS, i, pc);
         }
-        Self {
+        *self = Self {
             count: f32::from_bits(f32_bits(n, 0)),
             mu_scale,
             psi_base,
             codes,
-        }
+        };
     }
 }
 

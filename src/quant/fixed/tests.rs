@@ -680,3 +680,58 @@ fn small_voxel_merges_match_the_f32_path() {
         assert!(checked_psi > 10_000);
     }
 }
+
+/// The small-voxel path's fused form (a voxel of at most one point merged with one: each scatter computed
+/// where its codes are made, the largest from y's extremes) gives the codes of its separate scatter pass,
+/// bit for bit, and draws the same dither; and the table's leading zeros are `top16`'s.
+#[cfg(feature = "sparse-cooling")]
+#[test]
+fn the_fused_small_merge_is_the_unfused_one() {
+    let mut rng = Rng(0x0F_05_ED_01);
+    for v in (1..1 << 20).chain((0..200_000).map(|_| rng.next().max(1))) {
+        assert_eq!(super::small::top16_by_table(v), top16(v), "{v}");
+    }
+    let fix = Int8Fix::new(S);
+    let mut taken = 0;
+    for trial in 0..20_000u32 {
+        let fine = trial % 2 == 0;
+        let n0 = [1, 1, 1, 0, 2][(trial % 5) as usize];
+        let first = point_codes(&mut rng, trial % 6);
+        let mut old_sums = CodeSums::EMPTY;
+        for j in 0..n0 {
+            old_sums.add(&if j == 0 {
+                first
+            } else {
+                point_codes(&mut rng, 0)
+            });
+        }
+        let old = QuantVoxel::<D, P>::EMPTY.merge_codes_fixed(
+            &old_sums,
+            &fix,
+            fine,
+            &mut Dither::new(trial + 1),
+        );
+        let n1 = if trial % 7 == 0 { 2 } else { 1 };
+        let mut sums = CodeSums::EMPTY;
+        for _ in 0..n1 {
+            let spread = rng.next() % 4;
+            let kind = rng.next() % 6;
+            let codes: [i8; D] = if trial % 3 == 0 {
+                point_codes(&mut rng, kind)
+            } else {
+                core::array::from_fn(|d| {
+                    (i32::from(first[d]) + (rng.next() % (2 * spread + 1)) as i32 - spread as i32)
+                        .clamp(-128, 127) as i8
+                })
+            };
+            sums.add(&codes);
+        }
+        let (mut a, mut b) = (Dither::new(trial | 1), Dither::new(trial | 1));
+        let fused = old.merge_small(&sums, &fix, n0, fine, &mut a);
+        let unfused = old.merge_small_unfused(&sums, &fix, n0, fine, &mut b);
+        assert_eq!(fused, unfused, "trial {trial}");
+        assert_eq!(a.next(), b.next(), "trial {trial}: the dither");
+        taken += usize::from(fused.is_some());
+    }
+    assert!(taken > 15_000, "{taken}");
+}
