@@ -493,7 +493,8 @@ fn codes_unpack_and_pack_eight_at_a_time_as_one_at_a_time() {
     }
 }
 
-/// The loop-invariant shift of the sparse merge is the per-value one it replaced, for every shift up to 31.
+/// The loop-invariant shift of the sparse merge is the per-value one it replaced, capped at 2³⁰, for every
+/// shift up to 31.
 #[cfg(feature = "sparse-cooling")]
 #[test]
 fn the_fixed_shift_is_the_saturating_shift() {
@@ -504,7 +505,7 @@ fn the_fixed_shift_is_the_saturating_shift() {
             .into_iter()
             .chain((0..200).map(|_| rng.next() >> (rng.next() % 32)))
         {
-            assert_eq!(shift.apply(v), shl_sat(v, s), "v {v} s {s}");
+            assert_eq!(shift.apply(v), shl_sat(v, s).min(1 << 30), "v {v} s {s}");
         }
     }
 }
