@@ -338,6 +338,28 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let top = (bits(max_t) >> PSI_SHIFT) + 1;
         let psi_base = top.saturating_sub(PSI_CODE_MAX) as u16;
         let base = i32::from(psi_base);
+        // The Ψ code without the f32 bit pattern, when every nonzero scatter's biased exponent
+        // E = 157 + hi + te + ke is in 1..=254 (te ≥ −15 for t ≥ 1; at most max_t's + 1): the key is
+        // 4E + ((M + dd) >> 21) with M the mantissa's 23 bits, dd the dither's (`psi_key`), and
+        // (M + dd) >> 21 = (p' + dd·2⁸) >> 29 with p' the normalised product less its top bit (floors
+        // nest), all in a u32. ≈ 20 instructions a dimension fewer on v6-M than bits, then key.
+        let fast_key = FUSE && (max_t == 0 || (ke >= -141 && top16_by_table(max_t).1 + ke <= 96));
+        let key_base = 4 * (157 + ke) - base;
+        let code_of = |t: u32, d8: u32| -> u8 {
+            let code = if fast_key {
+                if t == 0 {
+                    return 0;
+                }
+                let (t16, te) = top16_by_table(t);
+                let p = t16 * k;
+                let hi = p >> 31;
+                let r = (((p << (1 - hi)) & 0x7FFF_FFFF) + (d8 << 21) + (1 << 20)) >> 29;
+                key_base + 4 * (te + hi as i32) + r as i32
+            } else {
+                psi_key(f32::from_bits(bits(t)), d8 as u8) as i32 - base
+            };
+            code.clamp(0, PSI_CODE_MAX as i32) as u8
+        };
 
         // ---- the codes, with the dither stream of the general merge.
         let (mut mu_codes, mut psi_codes) = ([0u8; D], [0u8; D]);
@@ -349,8 +371,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let u = round_shr(round_shr(x, xs).wrapping_mul(r_ns as i32), rs);
             let q = (u + (d & 0xFF) as i32) >> 8;
             *mc = q.clamp(-MU_QMAX - 1, MU_QMAX) as u8 & ((1 << MU_BITS) - 1) as u8;
-            let key = psi_key(f32::from_bits(bits(t)), (d >> 8) as u8) as i32;
-            *pc = (key - base).clamp(0, PSI_CODE_MAX as i32) as u8;
+            *pc = code_of(t, (d >> 8) & 0xFF);
         }
         // Every byte of both sections written (the packing fills the last byte's spare bits with 0).
         let (mu_out, psi_out) = self

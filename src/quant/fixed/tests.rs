@@ -683,7 +683,8 @@ fn small_voxel_merges_match_the_f32_path() {
 
 /// The small-voxel path's fused form (a voxel of at most one point merged with one: each scatter computed
 /// where its codes are made, the largest from y's extremes) gives the codes of its separate scatter pass,
-/// bit for bit, and draws the same dither; and the table's leading zeros are `top16`'s.
+/// bit for bit, and draws the same dither (its Ψ codes without the f32 bit pattern, on every merge it
+/// takes: as the separate pass's); and the table's leading zeros are `top16`'s.
 #[cfg(feature = "sparse-cooling")]
 #[test]
 fn the_fused_small_merge_is_the_unfused_one() {
@@ -695,7 +696,7 @@ fn the_fused_small_merge_is_the_unfused_one() {
     let mut taken = 0;
     for trial in 0..20_000u32 {
         let fine = trial % 2 == 0;
-        let n0 = [1, 1, 1, 0, 2][(trial % 5) as usize];
+        let n0 = [1, 1, 1, 0, 2, 1, 0, 5, 40, 255][(trial % 10) as usize];
         let first = point_codes(&mut rng, trial % 6);
         let mut old_sums = CodeSums::EMPTY;
         for j in 0..n0 {
@@ -711,7 +712,11 @@ fn the_fused_small_merge_is_the_unfused_one() {
             fine,
             &mut Dither::new(trial + 1),
         );
-        let n1 = if trial % 7 == 0 { 2 } else { 1 };
+        let n1 = match trial % 7 {
+            0 => 2,
+            1 => 1 + rng.next() % 255,
+            _ => 1,
+        };
         let mut sums = CodeSums::EMPTY;
         for _ in 0..n1 {
             let spread = rng.next() % 4;
