@@ -151,7 +151,8 @@ pub(super) fn shift(p: u32, sh: i32) -> u32 {
     if p == 0 {
         0
     } else if sh >= 0 {
-        if sh >= 30 || lz(p) < 2 + sh as u32 {
+        // Saturated when a bit of p reaches bit 30 (lz(p) < 2 + sh), tested without counting zeros.
+        if sh >= 30 || p >> (30 - sh) != 0 {
             1 << 30
         } else {
             p << sh

@@ -168,17 +168,15 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
 
         // The codes unpacked to a byte each. Two loops over the dimensions: the means (then the scale
-        // checked, before any scatter work) with each y² kept; the scatters' growth and keys, written over
-        // the old keys. Bytes 0 and 1 of each dimension's 16 dither bits serve μ and Ψ.
+        // checked, before any scatter work) with each y² kept, the new codes written over the old ones;
+        // the scatters' growth and keys, likewise. Bytes 0 and 1 of each dimension's 16 dither bits serve
+        // μ and Ψ.
         let (mu_in, psi_in) = self.codes.split_at(super::super::section_len(D, MU_BITS));
         let mut qs = [0u8; D];
-        let mut keys = [0u8; D];
         unpack_codes::<{ MU_BITS as usize }>(mu_in, &mut qs);
-        unpack_codes::<{ PSI_BITS as usize }>(psi_in, &mut keys);
         let mut max_u = 0u32;
         let mut dith = dither.clone();
         let mut d = 0;
-        let mut mu_codes = [0u8; D];
         // Built in place (`from_fn`: no zeroing first, a library call on these MCUs).
         let y2: [u32; D] = core::array::from_fn(|i| {
             d = if i % 2 == 0 { dith.next() } else { d >> 16 };
@@ -190,7 +188,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
             let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
             max_u = max_u.max(u.unsigned_abs());
-            if let Some(c) = mu_codes.get_mut(i) {
+            if let Some(c) = qs.get_mut(i) {
                 *c = (u.wrapping_add((d & 0xFF) as i32) >> 8) as u8 & ((1 << MU_BITS) - 1) as u8;
             }
             let y =
@@ -205,6 +203,8 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             return None;
         }
 
+        let mut keys = [0u8; D];
+        unpack_codes::<{ PSI_BITS as usize }>(psi_in, &mut keys);
         let (by_w, by_v) = (Shift::new(wsh), Shift::new(vsh));
         let mut top = 0usize;
         let mut dith = dither.clone();
@@ -260,7 +260,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
         let mut out = [0u8; P];
         let (mu_out, psi_out) = out.split_at_mut(super::super::section_len(D, MU_BITS));
-        pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
+        pack_codes::<{ MU_BITS as usize }>(&qs, mu_out);
         pack_codes::<{ PSI_BITS as usize }>(&keys, psi_out);
         *dither = dith;
         Some(Self {
