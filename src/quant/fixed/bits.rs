@@ -151,7 +151,8 @@ pub(super) fn shift(p: u32, sh: i32) -> u32 {
     if p == 0 {
         0
     } else if sh >= 0 {
-        if sh >= 30 || lz(p) < 2 + sh as u32 {
+        // Saturated when a bit of p reaches bit 30 (lz(p) < 2 + sh), tested without counting zeros.
+        if sh >= 30 || p >> (30 - sh) != 0 {
             1 << 30
         } else {
             p << sh
@@ -245,10 +246,10 @@ pub(super) fn mul_q16(x: u32, w: u32) -> u32 {
 }
 
 #[cfg(feature = "sparse-cooling")]
-/// `v · 2^s` (saturated to `u32::MAX` when shifting left, truncated when shifting right) by a shift fixed for
-/// a loop, its direction decided once: `v >> r`, then `<< l` saturated
-/// (one of them 0; no branch on the sign per value). The same as `shl_sat` for s ≤ 31 (the sparse merge's
-/// shifts are ≤ 15).
+/// min(v · 2^s, 2³⁰) (truncated when shifting right) by a shift fixed for a loop, its direction decided
+/// once: `v >> r`, then `<< l` capped (one of them 0; no branch on the sign per value). The cap: two such
+/// values and one below 2³⁰ add without overflow (the sparse merge's S, whose table stays below 2³⁰, so
+/// a capped S leaves it as a saturated one did). The same as `shl_sat` capped for s ≤ 31.
 #[derive(Clone, Copy)]
 pub(super) struct Shift {
     l: u32,
@@ -263,7 +264,7 @@ impl Shift {
         Self {
             l,
             r: s.min(0).unsigned_abs().min(31),
-            lim: u32::MAX >> l,
+            lim: (1 << 30) >> l,
         }
     }
 
@@ -271,7 +272,7 @@ impl Shift {
     pub(super) fn apply(self, v: u32) -> u32 {
         let v = v >> self.r;
         if v > self.lim {
-            u32::MAX
+            1 << 30
         } else {
             v << self.l
         }

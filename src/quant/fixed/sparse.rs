@@ -11,9 +11,16 @@
 //!   voxel's base), plus S₁ + n₀/(n·n₁)·y² with y = Σc − n₁m₀; the new key found by walking the table up from
 //!   the old one (S only grows), dithered linearly within its step as `psi_key` does.
 //!
-//! The codes are unpacked eight at a time into one byte each, the means, the scatters' growth and the keys
-//! computed in separate loops over those bytes, and packed eight at a time: on a Cortex-M0 (8 low registers)
-//! the one loop over the packed bit streams that did all of it kept ≈ 20 values live and spilled them.
+//! The codes are unpacked eight at a time into one byte each, computed in two loops over those bytes and
+//! packed eight at a time: on a Cortex-M0 (8 low registers) the one loop over the packed bit streams that
+//! did all of it kept ≈ 20 values live and spilled them. The first loop takes the means and each y² (it has
+//! Σc and the old code at hand), so the scale is checked before any scatter work (an 8×8 ToF's small
+//! voxels often need a new one); the second the scatters' growth and the keys. On the LiDAR's 42,335 sparse
+//! coolings (`PROFILE_SCENARIO=lidar_f3_i8 bash boards/measure-targets.sh --profile thumbv6m`) this
+//! function ran 492.0 M instructions with three loops (means 54, growth 43, keys 71 a dimension), 454.7 M
+//! with these two (53 and 97; the rest ≈ 1,100 a cooling: set-up, table, unpacking Ψ). One loop for all
+//! of it ran 463.1 M, and a merge refused for its scale paid for the scatters too (ToF 9,498 → 9,947 a
+//! point).
 //! When the scale must change, the scatter outgrows the table or a range would not fit 32 bits, it returns
 //! `None` and the general path cools the voxel (the dither stream untouched).
 //!
@@ -22,7 +29,9 @@
 //!
 //! Both give the codes of the code they replaced bit for bit (the QEMU boards' streams unchanged).
 //! `bash boards/measure-targets.sh --table thumbv6m`, instructions per point, f = 3, i8 features: ToF 8×8
-//! 18,233 → 14,487, scanning LiDAR 11,848 → 9,934, depth frames 1,849 → 1,839.
+//! 18,233 → 14,487, scanning LiDAR 11,848 → 9,934, depth frames 1,849 → 1,839; two loops instead of four
+//! and S's terms capped at 2³⁰ instead of saturated ([`Shift`]: no saturating adds): ToF 9,498 → 9,430,
+//! LiDAR 8,483 → 8,077, depth 1,590 → 1,589.
 
 use super::super::{Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_BITS, PSI_CODE_MAX};
 use super::bits::*;
@@ -144,61 +153,9 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let wsh = we - 16 - 2 * f - g;
         let (v, ve) = top16(recip(n1));
         let vsh = ve - 16 - g;
-        // Four loops over plain arrays, each with few live values (the M0 has 8 low registers: one loop
-        // over the packed codes that did all of it spilled ≈ 56 values a dimension to the stack): the codes
-        // unpacked; the means (then the scale checked, before any scatter work); the new points' scatters;
-        // the keys. Then both sections packed.
-        let (mu_in, psi_in) = self.codes.split_at(super::super::section_len(D, MU_BITS));
-        let mut qs = [0u8; D];
-        let mut keys = [0u8; D];
-        unpack_codes::<{ MU_BITS as usize }>(mu_in, &mut qs);
-        unpack_codes::<{ PSI_BITS as usize }>(psi_in, &mut keys);
-        // A mean code, sign-extended.
-        let q_at = |i: usize| i32::from((qs.get(i).copied().unwrap_or(0) << 1) as i8 >> 1);
-
-        // ---- means: byte 0 of each dimension's 16 dither bits.
-        let mut max_u = 0u32;
-        let mut dith = dither.clone();
-        let mut d = 0;
-        // The arrays below built in place (`from_fn`: no zeroing first, which is a library call on these
-        // MCUs: ≈ 1 instruction a byte).
-        let mu_codes: [u8; D] = core::array::from_fn(|i| {
-            d = if i % 2 == 0 { dith.next() } else { d >> 16 };
-            let (sum, q) = (sums.sum(i), q_at(i));
-            let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
-            let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
-            max_u = max_u.max(u.unsigned_abs());
-            let code = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
-            code as u8 & ((1 << MU_BITS) - 1) as u8
-        });
-        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
-        // on the fine grid, as `reencode_fine`).
-        let full = (MU_QMAX as u32) << 8;
-        let ((ka, kb), _) = super::grid(fine);
-        if max_u > full || max_u * (ka as u32) < full * (kb as u32) {
-            return None;
-        }
-
-        // ---- what the new points add to each scatter, in units.
-        let (by_w, by_v) = (Shift::new(wsh), Shift::new(vsh));
-        let adds: [u32; D] = core::array::from_fn(|i| {
-            let (sum, q) = (sums.sum(i), q_at(i));
-            let y =
-                ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
-            let s = by_w.apply(mul_q16(y.wrapping_mul(y) as u32, w));
-            if n1 > 1 {
-                let sq = sums.square(i);
-                s.saturating_add(by_v.apply(mul_q16(scatter_numerator(n1, sum, sq), v)))
-            } else {
-                s
-            }
-        });
-
-        // ---- the keys. Their values from the base up: four from the general path's conversion, the rest
-        // by halving (an octave per 4 keys).
+        // The old scatters' values by key, from the base up: four from the general path's conversion, the
+        // rest by halving (an octave per 4 keys): k halvings at once, ⌈t/2^k⌉ (the same as one at a time).
         let base_old = u32::from(self.psi_base);
-        // The top four keys' values; below them each is its octave's above halved, rounded up: k halvings
-        // at once, ⌈t/2^k⌉ (the same as one at a time).
         let tops: [u32; 4] =
             core::array::from_fn(|j| ctx.old_units((KEYS - 4 + j) as u32 + base_old));
         let table: [u32; KEYS] = core::array::from_fn(|c| {
@@ -209,16 +166,65 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         if table[KEYS - 1] >= 1 << 30 {
             return None; // saturated: the table does not reach
         }
+
+        // The codes unpacked to a byte each. Two loops over the dimensions: the means (then the scale
+        // checked, before any scatter work) with each y² kept, the new codes written over the old ones;
+        // the scatters' growth and keys, likewise. Bytes 0 and 1 of each dimension's 16 dither bits serve
+        // μ and Ψ.
+        let (mu_in, psi_in) = self.codes.split_at(super::super::section_len(D, MU_BITS));
+        let mut qs = [0u8; D];
+        unpack_codes::<{ MU_BITS as usize }>(mu_in, &mut qs);
+        let mut max_u = 0u32;
+        let mut dith = dither.clone();
+        let mut d = 0;
+        // Built in place (`from_fn`: no zeroing first, a library call on these MCUs).
+        let y2: [u32; D] = core::array::from_fn(|i| {
+            d = if i % 2 == 0 { dith.next() } else { d >> 16 };
+            let (sum, q) = (
+                sums.sum(i),
+                i32::from((qs.get(i).copied().unwrap_or(0) << 1) as i8 >> 1),
+            );
+            // The mean. No clamp: while max|u| ≤ 63·256 (else `None` below) the code is within ±63.
+            let t = sum.wrapping_mul(a).wrapping_sub(q.wrapping_mul(b));
+            let u = (q << 8).wrapping_add(t.wrapping_add(half).wrapping_shr(dsh as u32));
+            max_u = max_u.max(u.unsigned_abs());
+            if let Some(c) = qs.get_mut(i) {
+                *c = (u.wrapping_add((d & 0xFF) as i32) >> 8) as u8 & ((1 << MU_BITS) - 1) as u8;
+            }
+            let y =
+                ((sum << super::MEAN_FRAC).wrapping_sub(q.wrapping_mul(n1sig)) + y_half) >> y_sh;
+            y.wrapping_mul(y) as u32
+        });
+        // The scale stays while the merged mean fits it and reaches a quarter of it (as `reencode`; 1/1.25
+        // on the fine grid, as `reencode_fine`).
+        let full = (MU_QMAX as u32) << 8;
+        let ((ka, kb), _) = super::grid(fine);
+        if max_u > full || max_u * (ka as u32) < full * (kb as u32) {
+            return None;
+        }
+
+        let mut keys = [0u8; D];
+        unpack_codes::<{ PSI_BITS as usize }>(psi_in, &mut keys);
+        let (by_w, by_v) = (Shift::new(wsh), Shift::new(vsh));
         let mut top = 0usize;
         let mut dith = dither.clone();
         let mut d = 0;
-        for (i, (k, &add)) in keys.iter_mut().zip(&adds).enumerate() {
+        for (i, (k, &y2)) in keys.iter_mut().zip(&y2).enumerate() {
             d = if i % 2 == 0 { dith.next() } else { d >> 16 };
+            // ---- what the new points add to the scatter, in units.
+            // Each term at most 2³⁰ (`Shift`): S = add + lo without overflow, and S ≥ 2³⁰ walks past
+            // the table (< 2³⁰) to `None` as a saturated S did.
+            let mut add = by_w.apply(mul_q16(y2, w));
+            if n1 > 1 {
+                let (sum, sq) = (sums.sum(i), sums.square(i));
+                add += by_v.apply(mul_q16(scatter_numerator(n1, sum, sq), v));
+            }
+
+            // ---- the key: up from the old one (S only grows) to the one whose step holds S.
             // A 5-bit code: the mask is no change, but tells the compiler the table holds it.
             let mut key = usize::from(*k) & PSI_CODE_MAX as usize;
-            let mut lo = table.get(key).copied().unwrap_or(u32::MAX);
-            let s = add.saturating_add(lo);
-            // Up from the old key (S only grows) to the one whose step holds S.
+            let mut lo = table.get(key).copied().unwrap_or(0);
+            let s = add + lo;
             let hi = loop {
                 let next = table.get(key + 1).copied().unwrap_or(0);
                 if next == 0 || s < next {
@@ -254,7 +260,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         }
         let mut out = [0u8; P];
         let (mu_out, psi_out) = out.split_at_mut(super::super::section_len(D, MU_BITS));
-        pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
+        pack_codes::<{ MU_BITS as usize }>(&qs, mu_out);
         pack_codes::<{ PSI_BITS as usize }>(&keys, psi_out);
         *dither = dith;
         Some(Self {
