@@ -29,9 +29,12 @@
 //!
 //! Both give the codes of the code they replaced bit for bit (the QEMU boards' streams unchanged).
 //! `bash boards/measure-targets.sh --table thumbv6m`, instructions per point, f = 3, i8 features: ToF 8×8
-//! 18,233 → 14,487, scanning LiDAR 11,848 → 9,934, depth frames 1,849 → 1,839; two loops instead of four
-//! and S's terms capped at 2³⁰ instead of saturated ([`Shift`]: no saturating adds): ToF 9,498 → 9,430,
-//! LiDAR 8,483 → 8,077, depth 1,590 → 1,589.
+//! 18,233 → 14,487, scanning LiDAR 11,848 → 9,934, depth frames 1,849 → 1,839. Then, each measured on the
+//! main branch of its day: two loops instead of three and S's terms capped at 2³⁰ instead of saturated
+//! ([`Shift`]: no saturating adds): ToF 9,498 → 9,430, LiDAR 8,483 → 8,077 (riscv32imac 7,787 → 7,761 and
+//! 6,952 → 6,613); the new mean codes over the old ones: ToF 9,005 → 8,979, LiDAR 7,990 → 7,982; on v6-M
+//! a keys loop without S₁ for one new point: LiDAR 7,886 → 7,800, ToF 8,775 → 8,726; `encode_lone`
+//! without its clamp: ToF 8,726 → 8,534 (riscv32imac 7,216 → 7,128). Depth frames unchanged (1,556).
 
 use super::super::{Dither, QuantVoxel, MU_BITS, MU_QMAX, PSI_BITS, PSI_CODE_MAX};
 use super::bits::*;
@@ -69,14 +72,30 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         if r >= 1 << 24 {
             return None;
         }
-        // Built in place (`from_fn`: no zeroing first, which is a library call on these MCUs).
+        // Built in place (`from_fn`: no zeroing first, which is a library call on these MCUs). When σ·63 ≥
+        // max|m| (what `fresh_scale` aims at) the clamp is no change: |Σc·r| ≤ 63·2¹⁸, so |u| ≤ 63·256 and
+        // the code is within ±63; a loop without it (thumbv6m ToF 8×8: 8,726 → 8,534 instructions a point).
         let mut d = 0;
-        let mu_codes: [u8; D] = core::array::from_fn(|i| {
-            d = if i % 2 == 0 { dither.next() } else { d >> 16 };
+        let mut code = |i: usize, clamped: bool| {
+            d = if i.is_multiple_of(2) {
+                dither.next()
+            } else {
+                d >> 16
+            };
             let u = (sums.sum(i).wrapping_mul(r as i32) + (1 << 9)) >> 10;
-            let q = ((u + (d & 0xFF) as i32) >> 8).clamp(-MU_QMAX - 1, MU_QMAX);
+            let q = (u + (d & 0xFF) as i32) >> 8;
+            let q = if clamped {
+                q.clamp(-MU_QMAX - 1, MU_QMAX)
+            } else {
+                q
+            };
             q as u8 & ((1 << MU_BITS) - 1) as u8
-        });
+        };
+        let mu_codes: [u8; D] = if sigma.saturating_mul(MU_QMAX) >= max_abs {
+            core::array::from_fn(|i| code(i, false))
+        } else {
+            core::array::from_fn(|i| code(i, true))
+        };
         let mut codes = [0u8; P];
         let (mu_out, _) = codes.split_at_mut(super::super::section_len(D, MU_BITS));
         pack_codes::<{ MU_BITS as usize }>(&mu_codes, mu_out);
@@ -209,18 +228,14 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         let mut top = 0usize;
         let mut dith = dither.clone();
         let mut d = 0;
-        for (i, (k, &y2)) in keys.iter_mut().zip(&y2).enumerate() {
-            d = if i % 2 == 0 { dith.next() } else { d >> 16 };
-            // ---- what the new points add to the scatter, in units.
-            // Each term at most 2³⁰ (`Shift`): S = add + lo without overflow, and S ≥ 2³⁰ walks past
-            // the table (< 2³⁰) to `None` as a saturated S did.
-            let mut add = by_w.apply(mul_q16(y2, w));
-            if n1 > 1 {
-                let (sum, sq) = (sums.sum(i), sums.square(i));
-                add += by_v.apply(mul_q16(scatter_numerator(n1, sum, sq), v));
-            }
-
-            // ---- the key: up from the old one (S only grows) to the one whose step holds S.
+        // The key of dimension i whose S grew by `add`: up from the old one (S only grows) to the one whose
+        // step holds S, dithered within it; false above the table.
+        let mut key_of = |i: usize, k: &mut u8, add: u32| -> bool {
+            d = if i.is_multiple_of(2) {
+                dith.next()
+            } else {
+                d >> 16
+            };
             // A 5-bit code: the mask is no change, but tells the compiler the table holds it.
             let mut key = usize::from(*k) & PSI_CODE_MAX as usize;
             let mut lo = table.get(key).copied().unwrap_or(0);
@@ -234,7 +249,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
                 lo = next;
             };
             if hi == 0 {
-                return None; // above the table
+                return false; // above the table
             }
             top = top.max(key);
             // Dithered within the step as `psi_key`: up if (S − lo)/step ≥ (255.5 − byte)/256.
@@ -247,6 +262,31 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             let byte = (d >> 8) & 0xFF;
             key += usize::from(r << 9 >= (511 - 2 * byte) * st);
             *k = key as u8;
+            true
+        };
+        // What the new points add to each scatter, in units: n₀/(n·n₁)·y², plus S₁ when there are two or
+        // more (S₁ = 0 for one). Each term at most 2³⁰ (`Shift`): S = add + lo without overflow, and S ≥ 2³⁰
+        // walks past the table (< 2³⁰) to `None` as a saturated S did. On v6-M one new point takes a loop
+        // without S₁ (its registers freed: LiDAR 7,886 → 7,800 instructions a point); riscv32imac keeps one
+        // loop (there the second loop cost 6,358 → 6,453).
+        let dims = keys.iter_mut().zip(&y2).enumerate();
+        if cfg!(target_abi = "eabi") && n1 == 1 {
+            for (i, (k, &y2)) in dims {
+                if !key_of(i, k, by_w.apply(mul_q16(y2, w))) {
+                    return None;
+                }
+            }
+        } else {
+            for (i, (k, &y2)) in dims {
+                let mut add = by_w.apply(mul_q16(y2, w));
+                if n1 > 1 {
+                    let (sum, sq) = (sums.sum(i), sums.square(i));
+                    add += by_v.apply(mul_q16(scatter_numerator(n1, sum, sq), v));
+                }
+                if !key_of(i, k, add) {
+                    return None;
+                }
+            }
         }
 
         // ---- both sections packed; the base as `reencode` sets it: the floor key of the largest scatter
