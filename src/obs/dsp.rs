@@ -511,8 +511,6 @@ mod tests {
         lanes_equal_the_definition::<6>();
     }
 
-    /// A block's words in memory: Σc of dimensions 0 and 2 in the first word's lanes, 1 and 3 in the
-    /// second's, then Σc² in order (what `ldm` hands the `asm!` block).
     /// `set` writes what `add` makes of empty lanes, over any old contents, for whole blocks and a tail,
     /// −128 included.
     fn set_is_add_to_empty<const D: usize>() {
@@ -539,6 +537,8 @@ mod tests {
         set_is_add_to_empty::<7>();
     }
 
+    /// A block's words in memory: Σc of dimensions 0 and 2 in the first word's lanes, 1 and 3 in the
+    /// second's, then Σc² in order (what `ldm` hands the `asm!` block).
     #[test]
     fn block_layout() {
         let mut lanes = Lanes::<4>::EMPTY;

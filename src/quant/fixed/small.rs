@@ -133,9 +133,10 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
             .is_some()
     }
 
-    /// [`Self::merge_small_here`] as a value (`None`: not taken).
+    /// [`Self::merge_small_here`] as a value (`None`: not taken); `FUSE` false: the scatters always in a
+    /// pass of their own, what the tests hold the fused form to, bit for bit.
     #[cfg(test)]
-    pub(super) fn merge_small(
+    pub(super) fn merge_small<const FUSE: bool>(
         &self,
         sums: &CodeSums<D>,
         fix: &Int8Fix,
@@ -144,23 +145,7 @@ impl<const D: usize, const P: usize> QuantVoxel<D, P> {
         dither: &mut Dither,
     ) -> Option<Self> {
         let mut out = *self;
-        out.merge_small_here(sums, fix, n0, fine, dither)
-            .then_some(out)
-    }
-
-    /// [`Self::merge_small`] with the scatters always in a pass of their own (`FUSE` false): what the
-    /// tests hold the fused form to, bit for bit.
-    #[cfg(test)]
-    pub(super) fn merge_small_unfused(
-        &self,
-        sums: &CodeSums<D>,
-        fix: &Int8Fix,
-        n0: u32,
-        fine: bool,
-        dither: &mut Dither,
-    ) -> Option<Self> {
-        let mut out = *self;
-        out.merge_small_in::<false>(sums, fix, n0, fine, dither)?;
+        out.merge_small_in::<FUSE>(sums, fix, n0, fine, dither)?;
         Some(out)
     }
 

@@ -596,7 +596,7 @@ fn small_voxel_merges_match_the_f32_path() {
             }
             let mut dg = dx.clone();
             let got = old
-                .merge_small(&sums, &fix, n0, fine, &mut dx)
+                .merge_small::<true>(&sums, &fix, n0, fine, &mut dx)
                 .unwrap_or_else(|| panic!("trial {trial}: not taken"));
             let general = old.merge_general(&sums, &fix, fine, &mut dg);
             assert_eq!(dx.clone().next(), dg.next(), "trial {trial}: the dither");
@@ -617,7 +617,8 @@ fn small_voxel_merges_match_the_f32_path() {
             if !sparse && (n0, n1) != (0, 1) {
                 assert_eq!(
                     old.merge_codes_fixed(&sums, &fix, fine, &mut dd.clone()),
-                    old.merge_small(&sums, &fix, n0, fine, &mut dd).unwrap(),
+                    old.merge_small::<true>(&sums, &fix, n0, fine, &mut dd)
+                        .unwrap(),
                 );
             }
 
@@ -732,8 +733,8 @@ fn the_fused_small_merge_is_the_unfused_one() {
             sums.add(&codes);
         }
         let (mut a, mut b) = (Dither::new(trial | 1), Dither::new(trial | 1));
-        let fused = old.merge_small(&sums, &fix, n0, fine, &mut a);
-        let unfused = old.merge_small_unfused(&sums, &fix, n0, fine, &mut b);
+        let fused = old.merge_small::<true>(&sums, &fix, n0, fine, &mut a);
+        let unfused = old.merge_small::<false>(&sums, &fix, n0, fine, &mut b);
         assert_eq!(fused, unfused, "trial {trial}");
         assert_eq!(a.next(), b.next(), "trial {trial}: the dither");
         taken += usize::from(fused.is_some());
